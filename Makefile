@@ -1,0 +1,39 @@
+# The two commands of the README: `make demo` and `make test` set everything up on a fresh machine.
+PYTHON ?= python3.11
+VENV ?= .venv
+# Installed before the package so that pip never resolves a bare `torch` to a multi-GB CUDA build.
+# Choose another build with e.g. `make test TORCH="torch==2.13.0 --index-url <your index>"`.
+TORCH ?= torch==2.13.0
+BIN := $(VENV)/bin
+
+.PHONY: demo test bench bench-formats bench-fuzz clean
+
+$(BIN)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet $(TORCH)
+	$(BIN)/pip install --quiet -e ".[dev]"
+	touch $@
+
+demo: $(BIN)/.installed
+	$(BIN)/pointfield demo --out demo-output
+
+test: $(BIN)/.installed
+	$(BIN)/python -m pytest -q
+
+# open3d's wheel links libusb; Debian machines without it get it from apt.
+$(BIN)/.open3d: $(BIN)/.installed
+	$(BIN)/python -c "import open3d" 2>/dev/null || (apt-get install -y -qq libusb-1.0-0 >/dev/null)
+	$(BIN)/python -c "import open3d"
+	touch $@
+
+bench: bench-formats bench-fuzz
+
+bench-formats: $(BIN)/.open3d
+	$(BIN)/python benchmarks/bench_formats.py
+
+bench-fuzz: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_fuzz.py
+
+clean:
+	rm -rf $(VENV) demo-output bench-output

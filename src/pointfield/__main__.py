@@ -1,0 +1,5 @@
+import sys
+
+from pointfield.cli import main
+
+sys.exit(main())

@@ -1,0 +1,52 @@
+"""The ``pointfield`` command: one verb group per module, each adding its subcommands here.
+
+Every subcommand is a thin layer over a Python function of the same name and arguments, so
+whatever the command line does can be done from Python.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Sequence
+
+import pointfield
+from pointfield.cli import cloud, demo
+from pointfield.errors import PointfieldError
+
+# Each module exposes add_parser(subparsers); order is the order `pointfield --help` lists them.
+VERB_GROUPS = (cloud, demo)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="pointfield",
+        description="3D vision toolkit: point clouds, radiance fields and Gaussian splats.",
+    )
+    parser.add_argument("--version", action="version", version=f"pointfield {pointfield.__version__}")
+    subparsers = parser.add_subparsers(dest="group", metavar="COMMAND", required=True)
+    for group in VERB_GROUPS:
+        group.add_parser(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run a command; expected failures print one line to stderr and return non-zero."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.run(args) or 0)
+    except (PointfieldError, FileNotFoundError, IsADirectoryError, PermissionError) as error:
+        print(f"pointfield: error: {error}", file=sys.stderr)
+        return 1
+    except BrokenPipeError:
+        # `pointfield cloud info x | head` closed our stdout: not an error; silence the flush.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except KeyboardInterrupt:
+        print("pointfield: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,26 @@
+"""One exception family for everything pointfield raises on purpose.
+
+Catch :class:`PointfieldError` to handle any of them; the command line prints its message as one
+line and exits non-zero.
+"""
+
+from __future__ import annotations
+
+import os
+
+
+class PointfieldError(Exception):
+    """Base class of every error pointfield raises deliberately."""
+
+
+class FormatError(PointfieldError, ValueError):
+    """A file is malformed, truncated, hostile, or not in the format it claims.
+
+    The message always starts with the file's path, then says what was wrong and, where it helps,
+    what was expected: ``"scan.pcd: header says 10 points of 16 bytes but only 12 bytes follow"``.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], message: str):
+        self.path = os.fspath(path)
+        self.reason = message
+        super().__init__(f"{self.path}: {message}")
