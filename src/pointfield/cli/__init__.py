@@ -12,11 +12,11 @@ import sys
 from collections.abc import Sequence
 
 import pointfield
-from pointfield.cli import cloud, demo
+from pointfield.cli import cloud, demo, scene
 from pointfield.errors import PointfieldError
 
 # Each module exposes add_parser(subparsers); order is the order `pointfield --help` lists them.
-VERB_GROUPS = (cloud, demo)
+VERB_GROUPS = (cloud, scene, demo)
 
 
 def build_parser() -> argparse.ArgumentParser:
