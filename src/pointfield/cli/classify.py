@@ -1,0 +1,163 @@
+"""``pointfield classify train|eval|predict``: shape classification with the PointNet family.
+
+Each subcommand calls the function of the same name and arguments in
+:mod:`pointfield.classify` (``eval`` calls :func:`pointfield.classify.evaluate`). torch is
+imported only when a subcommand runs, so other commands start fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+MODELS = ("pointnet", "pointnet2", "pointnet2-msg")
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``classify`` and its subcommands to the ``pointfield`` parser."""
+    group = subparsers.add_parser(
+        "classify",
+        help="train, evaluate and apply shape classifiers (PointNet, PointNet++)",
+        description="Classify whole point clouds. DATA is a folder with one subfolder per class "
+        "(files in any format pointfield reads; meshes are surface-sampled; optional train/ and "
+        "test/ subfolders), or a ModelNet folder (raw OFF, modelnet40_normal_resampled, "
+        "ply_hdf5_2048). Without DATA, the built-in synthetic shapes (10 classes).",
+    )
+    verbs = group.add_subparsers(dest="verb", metavar="SUBCOMMAND", required=True)
+    train = verbs.add_parser("train", help="train a classifier into a run folder")
+    add_training_arguments(train, "classify")
+    train.set_defaults(run=lambda args: run_train(args, "classify"))
+    add_eval_parser(verbs, "classify")
+    predict = verbs.add_parser(
+        "predict", help="classify files with a trained run",
+        description="Print the class and its probability for each file; with --json, a list "
+        "of objects with file, class, probability and probabilities (by class name). The "
+        "answer does not depend on the order of the points in the file.",
+    )
+    predict.add_argument("run_dir", type=Path, metavar="RUN", help="a run folder from classify train")
+    predict.add_argument("files", type=Path, nargs="+", metavar="FILE", help="clouds or meshes")
+    predict.add_argument("--device", help="auto (default), cpu, cuda, cuda:N or mps")
+    predict.add_argument("--json", action="store_true", help="print JSON")
+    predict.set_defaults(run=run_predict)
+
+
+def add_training_arguments(parser: argparse.ArgumentParser, task: str) -> None:
+    """The ``train`` arguments shared by ``classify`` and ``segment``."""
+    parser.add_argument(
+        "data", nargs="?", type=Path, metavar="DATA",
+        help="training data folder (default: the built-in synthetic shapes)",
+    )
+    parser.add_argument("--model", choices=MODELS, default="pointnet",
+                        help="pointnet (default), pointnet2 (PointNet++ SSG) or pointnet2-msg")
+    parser.add_argument("--epochs", type=int, help="epochs (default: pointnet 10, pointnet2 5)")
+    parser.add_argument("--batch-size", type=int,
+                        help="clouds per batch, per process (default: pointnet 32, pointnet2 16)")
+    parser.add_argument("--points", type=int, default=1024, help="points per cloud (default 1024)")
+    parser.add_argument("--out", type=Path, default=Path(f"runs/{task}"),
+                        help=f"run folder to write (default runs/{task})")
+    parser.add_argument("--device", help="auto (default), cpu, cuda, cuda:N or mps")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in --out from its last checkpoint")
+    parser.add_argument("--normals", action="store_true",
+                        help="feed per-point normals to the model as well as xyz")
+    parser.add_argument("--no-input-transform", dest="input_transform", action="store_false",
+                        help="PointNet without its input (3x3) T-Net")
+    parser.add_argument("--no-feature-transform", dest="feature_transform",
+                        action="store_false", help="PointNet without its feature (64x64) T-Net")
+    parser.add_argument("--lr", dest="learning_rate", type=float, default=1e-3,
+                        help="Adam learning rate (default 0.001, cosine-decayed)")
+    parser.add_argument("--workers", type=int, default=0,
+                        help="DataLoader worker processes (default 0: load in the main process)")
+    parser.add_argument("--on-error", choices=("skip", "fail"), default="skip",
+                        help="a DATA file that cannot be read: skip it with a warning (default) "
+                        "or stop")
+    parser.add_argument("--shapes-per-class", type=int,
+                        help="synthetic training shapes per class (default 100; test: 30 %%)")
+    parser.add_argument("--no-progress", dest="progress", action="store_false",
+                        help="no progress bar")
+    if task == "segment":
+        parser.add_argument("--label-field", default="label",
+                            help="per-point integer field holding the labels (default: label)")
+
+
+def add_eval_parser(verbs: argparse._SubParsersAction, task: str) -> None:
+    evaluate = verbs.add_parser(
+        "eval", help="score a trained run on test data",
+        description="Score a trained run on the test split of DATA (default: the data it was "
+        "trained on): accuracy, mean class accuracy" + (", mIoU" if task == "segment" else "")
+        + " and the score of each class.",
+    )
+    evaluate.add_argument("run_dir", type=Path, metavar="RUN", help=f"a run folder from {task} train")
+    evaluate.add_argument("data", type=Path, nargs="?", metavar="DATA",
+                          help="test data (default: the run's own)")
+    evaluate.add_argument("--device", help="auto (default), cpu, cuda, cuda:N or mps")
+    evaluate.add_argument("--on-error", choices=("skip", "fail"), default="skip",
+                          help="unreadable DATA files: skip with a warning (default) or stop")
+    evaluate.add_argument("--json", action="store_true", help="print JSON")
+    evaluate.set_defaults(run=lambda args: run_eval(args, task))
+
+
+def run_train(args: argparse.Namespace, task: str) -> int:
+    module = _module(task)
+    options: dict[str, Any] = dict(
+        model=args.model, epochs=args.epochs, batch_size=args.batch_size, points=args.points,
+        out=args.out, device=args.device, seed=args.seed, resume=args.resume,
+        normals=args.normals, input_transform=args.input_transform,
+        feature_transform=args.feature_transform, learning_rate=args.learning_rate,
+        workers=args.workers, on_error=args.on_error, shapes_per_class=args.shapes_per_class,
+        progress=args.progress,
+    )
+    if task == "segment":
+        options["label_field"] = args.label_field
+    metrics = module.train(args.data, **options)
+    if os.environ.get("RANK", "0") == "0":
+        print(f"{task} run {args.out}: {_scores_line(metrics)} ({metrics['epochs']} epochs, "
+              f"{metrics['seconds']:.0f} s); see {args.out / 'metrics.json'}")
+    return 0
+
+
+def run_eval(args: argparse.Namespace, task: str) -> int:
+    metrics = _module(task).evaluate(args.run_dir, args.data, device=args.device,
+                                     on_error=args.on_error)
+    if args.json:
+        print(json.dumps(metrics, indent=2))
+        return 0
+    print(f"{metrics['samples']} test clouds: {_scores_line(metrics)}")
+    label = "IoU" if task == "segment" else "accuracy"
+    width = max(len(name) for name in metrics["per_class"])
+    for name, value in metrics["per_class"].items():
+        shown = "absent" if value is None else f"{value:.4f}"
+        print(f"  {name:<{width}}  {label} {shown}")
+    return 0
+
+
+def run_predict(args: argparse.Namespace) -> int:
+    from pointfield.classify import predict
+
+    answers = predict(args.run_dir, args.files, device=args.device)
+    if args.json:
+        print(json.dumps(answers, indent=2))
+    else:
+        for answer in answers:
+            print(f"{answer['file']}: {answer['class']} ({answer['probability']:.3f})")
+    return 0
+
+
+def _scores_line(metrics: dict[str, Any]) -> str:
+    parts = [f"accuracy {metrics['accuracy']:.4f}",
+             f"mean class accuracy {metrics['mean_class_accuracy']:.4f}"]
+    if "miou" in metrics:
+        parts.append(f"mIoU {metrics['miou']:.4f}")
+    return ", ".join(parts)
+
+
+def _module(task: str):
+    if task == "classify":
+        import pointfield.classify as module
+    else:
+        import pointfield.segment as module
+    return module

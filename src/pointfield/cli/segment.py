@@ -1,0 +1,56 @@
+"""``pointfield segment train|eval|predict``: per-point labels with the PointNet family.
+
+Each subcommand calls the function of the same name and arguments in
+:mod:`pointfield.segment` (``eval`` calls :func:`pointfield.segment.evaluate`); the training
+options are those of ``pointfield classify train`` plus ``--label-field``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from pointfield.cli.classify import add_eval_parser, add_training_arguments, run_train
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``segment`` and its subcommands to the ``pointfield`` parser."""
+    group = subparsers.add_parser(
+        "segment",
+        help="train, evaluate and apply per-point segmenters (PointNet, PointNet++)",
+        description="Label every point of a cloud (parts, or semantic classes). DATA is a "
+        "folder of clouds whose per-point integer field (--label-field, default 'label') "
+        "holds the labels, with optional train/ and test/ subfolders. Without DATA, the "
+        "built-in synthetic shapes and their 17 parts.",
+    )
+    verbs = group.add_subparsers(dest="verb", metavar="SUBCOMMAND", required=True)
+    train = verbs.add_parser("train", help="train a segmenter into a run folder")
+    add_training_arguments(train, "segment")
+    train.set_defaults(run=lambda args: run_train(args, "segment"))
+    add_eval_parser(verbs, "segment")
+    predict = verbs.add_parser(
+        "predict", help="label every point of files with a trained run",
+        description="Write each FILE, labelled, to OUT/<name>.ply with an int32 'label' field "
+        "(a mesh keeps its faces), and print how many points each part got.",
+    )
+    predict.add_argument("run_dir", type=Path, metavar="RUN", help="a run folder from segment train")
+    predict.add_argument("files", type=Path, nargs="+", metavar="FILE", help="clouds or meshes")
+    predict.add_argument("--out", type=Path, help="folder for the labelled clouds "
+                         "(default: RUN/predictions)")
+    predict.add_argument("--device", help="auto (default), cpu, cuda, cuda:N or mps")
+    predict.add_argument("--json", action="store_true", help="print JSON")
+    predict.set_defaults(run=run_predict)
+
+
+def run_predict(args: argparse.Namespace) -> int:
+    from pointfield.segment import predict
+
+    answers = predict(args.run_dir, args.files, device=args.device, out=args.out)
+    if args.json:
+        print(json.dumps(answers, indent=2))
+        return 0
+    for answer in answers:
+        parts = ", ".join(f"{name} {count}" for name, count in answer["parts"].items())
+        print(f"{answer['file']} -> {answer['output']}: {answer['points']} points ({parts})")
+    return 0

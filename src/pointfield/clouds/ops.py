@@ -1,0 +1,407 @@
+"""Operations on point coordinates: centring, scaling, sampling, neighbourhoods and normals.
+
+Two families, one convention each:
+
+- **numpy, one cloud**: ``points`` is ``(N, 3)`` float32 or float64; results keep the input
+  dtype unless stated. These prepare data: :func:`centre`, :func:`normalise_to_unit_sphere`,
+  :func:`unit_sphere_frame`, :func:`random_sample`, :func:`canonical_sample`,
+  :func:`farthest_point_sample` (fpsample's compiled FPS), :func:`voxel_downsample`,
+  :func:`estimate_normals`.
+- **torch, batched**: ``points`` is ``(B, N, 3)`` on any device, with an optional ``mask``
+  ``(B, N)`` bool marking real points in padded batches (real points first). These run inside
+  models: :func:`farthest_point_sample_batched` (a batched torch loop on GPUs, fpsample per
+  cloud on the CPU), :func:`knn`, :func:`ball_query`, :func:`gather_points`.
+  :func:`farthest_point_sample_reference` is the slow, obviously correct version the tests
+  hold the fast ones to.
+
+Farthest point sampling everywhere starts, unless told otherwise, from the point farthest from
+the centroid, so that the sample depends only on the points, never on their order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from pointfield.clouds.cloud import PointCloud
+
+# Rows of queries handled at once by the brute-force neighbour searches: bounds their memory to
+# about QUERY_CHUNK * N distances.
+QUERY_CHUNK = 4096
+
+
+# ---------------------------------------------------------------------------------------------
+# numpy: one cloud
+# ---------------------------------------------------------------------------------------------
+
+
+def finite_rows(points: np.ndarray) -> np.ndarray:
+    """``(N,)`` bool: the points whose three coordinates are all finite (no NaN, no inf)."""
+    return np.isfinite(points).all(axis=1)
+
+
+def centre(points: np.ndarray) -> np.ndarray:
+    """Translate the points so that their mean is the origin: ``p - mean(p)``.
+
+    The mean is accumulated in float64, so UTM-sized float64 coordinates lose nothing; the
+    result has the input's dtype.
+    """
+    mean = points.mean(axis=0, dtype=np.float64)
+    return (points - mean).astype(points.dtype, copy=False)
+
+
+def unit_sphere_frame(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(centre, radius)``: the mean of the points and their largest distance from it.
+
+    Computed in float64. ``(p - centre) / radius`` maps the cloud into the unit sphere; the
+    radius is 1 for a cloud whose points all coincide.
+    """
+    centre = points.mean(axis=0, dtype=np.float64)
+    if len(points) == 0:
+        return centre, 1.0
+    radius = float(np.sqrt(((points.astype(np.float64) - centre) ** 2).sum(axis=1).max()))
+    return centre, radius if radius > 0 else 1.0
+
+
+def normalise_to_unit_sphere(points: np.ndarray) -> np.ndarray:
+    """Centre the points and scale them so the farthest lies on the unit sphere.
+
+    ``q = (p - mean(p)) / max_i |p_i - mean(p)|``, computed in float64, returned as float32
+    (the precision models use; centring first keeps the digits that matter). A cloud whose
+    points all coincide is only centred.
+    """
+    centre, radius = unit_sphere_frame(points)
+    return ((points.astype(np.float64) - centre) / radius).astype(np.float32)
+
+
+def random_sample(count: int, size: int, rng: np.random.Generator) -> np.ndarray:
+    """``(size,)`` int64 indices into ``count`` points: a random subset, padded when too few.
+
+    With ``count >= size`` the indices are distinct (sampling without replacement). With fewer
+    points every index appears at least once and random repeats fill the rest: a repeated point
+    changes nothing in a max-pooled feature, so padding this way is harmless to PointNet.
+    """
+    if count <= 0:
+        raise ValueError("cannot sample from an empty cloud")
+    if count >= size:
+        return rng.choice(count, size=size, replace=False)
+    extra = rng.integers(0, count, size=size - count)
+    return rng.permutation(np.concatenate([np.arange(count), extra]))
+
+
+def canonical_sample(points: np.ndarray, size: int) -> np.ndarray:
+    """Indices of ``size`` points chosen by their coordinates alone, in an order set by them too.
+
+    Each point gets a 64-bit hash of its coordinates' bytes and the ``size`` smallest hashes
+    win, in hash order. The same cloud in any point order gives the same points in the same
+    order (points that are exact duplicates are interchangeable), which is what makes
+    ``predict`` on a shuffled file return exactly the same answer. With ``size >= N`` every
+    index is returned, in hash order.
+    """
+    # -0.0 and 0.0 are the same coordinate but not the same bytes; adding 0.0 unifies them.
+    coords = np.ascontiguousarray(points + 0.0)
+    words = coords.view(np.uint32 if coords.dtype == np.float32 else np.uint64)
+    words = words.astype(np.uint64)
+    key = np.zeros(len(points), np.uint64)
+    for column, multiplier in zip(words.T, _HASH_MULTIPLIERS):
+        key = _splitmix64(key ^ (column * multiplier))
+    order = np.argsort(key, kind="stable")
+    return order[: min(size, len(order))]
+
+
+_HASH_MULTIPLIERS = (
+    np.uint64(0x9E3779B97F4A7C15),
+    np.uint64(0xC2B2AE3D27D4EB4F),
+    np.uint64(0x165667B19E3779F9),
+)
+
+
+def _splitmix64(x: np.ndarray) -> np.ndarray:
+    """The splitmix64 finaliser: a cheap bijection of uint64 that scatters nearby inputs."""
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+def farthest_point_start(points: np.ndarray) -> int:
+    """Index of the point farthest from the centroid: FPS's default, order-independent start."""
+    centred = points.astype(np.float64) - points.mean(axis=0, dtype=np.float64)
+    return int(np.argmax((centred**2).sum(axis=1)))
+
+
+def farthest_point_sample(points: np.ndarray, size: int, start: int | None = None) -> np.ndarray:
+    """``(size,)`` int64 indices of a farthest point sample, computed by fpsample (compiled).
+
+    Greedy: begin at ``start`` (default: :func:`farthest_point_start`), then repeatedly add the
+    point whose distance to the chosen set, ``d(p) = min_{s in S} |p - s|``, is largest. Every
+    prefix is a well spread subset. With ``size > N`` all N points are chosen and the rest of
+    the indices repeat ``start``.
+    """
+    import fpsample
+
+    count = len(points)
+    if count == 0:
+        raise ValueError("cannot sample from an empty cloud")
+    if start is None:
+        start = farthest_point_start(points)
+    if not 0 <= start < count:
+        raise ValueError(f"start must be in 0..{count - 1}, got {start}")
+    if size <= 0:
+        return np.zeros(0, np.int64)
+    chosen = fpsample.fps_sampling(
+        np.asarray(points, np.float32), min(size, count), start_idx=int(start)
+    ).astype(np.int64)
+    if size > count:
+        chosen = np.concatenate([chosen, np.full(size - count, start, np.int64)])
+    return chosen
+
+
+def voxel_downsample(cloud: PointCloud | np.ndarray, voxel_size: float) -> PointCloud | np.ndarray:
+    """One point per occupied cube of side ``voxel_size``: the mean of the points inside it.
+
+    A point p falls in voxel ``floor((p - min) / voxel_size)``. Floating-point fields are
+    averaged over the voxel like the points (normals are renormalised to unit length); other
+    fields (labels, integer colours) take the value of the voxel's first point. Given an array,
+    returns the ``(M, 3)`` voxel centroids in its dtype; given a cloud, a cloud. Voxels come in
+    lexicographic order of their grid coordinates. Non-finite points are dropped.
+    """
+    if voxel_size <= 0:
+        raise ValueError(f"voxel_size must be positive, got {voxel_size}")
+    source = cloud if isinstance(cloud, PointCloud) else PointCloud(np.asarray(cloud))
+    source = source.select(finite_rows(source.points))
+    points = source.points.astype(np.float64)
+    if len(points) == 0:
+        return source if isinstance(cloud, PointCloud) else source.points
+    cells = np.floor((points - points.min(axis=0)) / voxel_size).astype(np.int64)
+    _, first, inverse, counts = np.unique(
+        cells, axis=0, return_index=True, return_inverse=True, return_counts=True
+    )
+    inverse = inverse.reshape(-1)
+
+    def voxel_mean(values: np.ndarray) -> np.ndarray:
+        flat = values.reshape(len(values), -1).astype(np.float64)
+        sums = np.zeros((len(counts), flat.shape[1]))
+        np.add.at(sums, inverse, flat)
+        return (sums / counts[:, None]).reshape((len(counts), *values.shape[1:]))
+
+    centroids = voxel_mean(points).astype(source.points.dtype)
+    if not isinstance(cloud, PointCloud):
+        return centroids
+    fields = {}
+    for name, values in source.fields.items():
+        if np.issubdtype(values.dtype, np.floating):
+            averaged = voxel_mean(values)
+            if name == "normals":
+                length = np.linalg.norm(averaged, axis=1, keepdims=True)
+                averaged = averaged / np.maximum(length, 1e-12)
+            fields[name] = averaged.astype(values.dtype)
+        else:
+            fields[name] = values[first]
+    return PointCloud(centroids, fields, None, dict(source.metadata))
+
+
+def estimate_normals(
+    points: np.ndarray, neighbours: int = 16, viewpoint: np.ndarray | None = None
+) -> np.ndarray:
+    """``(N, 3)`` float32 unit normals from the ``neighbours`` nearest points (PCA).
+
+    For each point, the covariance of its k nearest neighbours (itself included),
+    ``S = 1/k sum_j (q_j - q_mean)(q_j - q_mean)^T``, has its smallest eigenvalue along the
+    surface normal; that eigenvector is the normal. PCA leaves the sign open: normals are
+    flipped to face ``viewpoint`` (the sensor position, for a scan) when it is given, else to
+    point away from the cloud's centroid (right for closed objects such as ModelNet shapes).
+
+    Neighbours come from an exact brute-force search (:func:`knn`), O(N²) work done in chunks:
+    about a second for 20,000 points on a laptop CPU; voxel-downsample large scans first.
+    Non-finite points get NaN normals and are nobody's neighbour.
+    """
+    points = np.asarray(points)
+    normals = np.full(points.shape, np.nan, np.float32)
+    finite = finite_rows(points)
+    valid = points[finite].astype(np.float64)
+    if len(valid) < 3:
+        raise ValueError(f"need at least 3 finite points to estimate normals, got {len(valid)}")
+    k = min(neighbours, len(valid))
+    centred_cloud = valid - valid.mean(axis=0)
+    as_tensor = torch.from_numpy(centred_cloud)[None]
+    _, index = knn(as_tensor, as_tensor, k)
+    groups = as_tensor[0][index[0]]  # (N, k, 3)
+    deviations = groups - groups.mean(dim=1, keepdim=True)
+    covariance = deviations.transpose(1, 2) @ deviations / k
+    _, eigenvectors = torch.linalg.eigh(covariance)  # eigenvalues ascending
+    estimated = eigenvectors[:, :, 0].numpy()
+    towards = (
+        np.asarray(viewpoint, np.float64) - valid
+        if viewpoint is not None
+        else -centred_cloud  # pointing at the centroid, so flipped below to face away from it
+    )
+    facing = (estimated * towards).sum(axis=1)
+    flip = facing < 0 if viewpoint is not None else facing > 0
+    estimated[flip] *= -1
+    normals[finite] = estimated.astype(np.float32)
+    return normals
+
+
+# ---------------------------------------------------------------------------------------------
+# torch: batches, on any device
+# ---------------------------------------------------------------------------------------------
+
+
+def gather_points(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """Pick rows per cloud: ``values`` ``(B, N, C)``, ``index`` ``(B, *S)`` -> ``(B, *S, C)``."""
+    batch, channels = values.shape[0], values.shape[-1]
+    flat = index.reshape(batch, -1)
+    picked = torch.gather(values, 1, flat.unsqueeze(-1).expand(-1, -1, channels))
+    return picked.reshape(*index.shape, channels)
+
+
+def masked_centroid(points: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """``(B, 3)`` mean of the real points of each cloud of a ``(B, N, 3)`` batch."""
+    if mask is None:
+        return points.mean(dim=1)
+    weights = mask.to(points.dtype).unsqueeze(-1)
+    return (points * weights).sum(dim=1) / weights.sum(dim=1).clamp_min(1)
+
+
+def farthest_point_sample_batched(
+    points: torch.Tensor,
+    size: int,
+    mask: torch.Tensor | None = None,
+    start: torch.Tensor | None = None,
+    backend: str | None = None,
+) -> torch.Tensor:
+    """``(B, size)`` int64 indices of a farthest point sample of each cloud of ``(B, N, 3)``.
+
+    The greedy rule of :func:`farthest_point_sample` for every cloud. ``start`` ``(B,)``
+    defaults to each cloud's real point farthest from its centroid. Padding points (``mask``
+    False; real points come first) are never chosen; once a cloud's real points are
+    exhausted the sample repeats its start point.
+
+    ``backend``: ``"torch"`` runs ``size`` batched iterations of
+    ``d(p) = min(d(p), |p - last|²)``, ``last = argmax d`` on the tensors' device (the GPU
+    path); ``"fpsample"`` runs the compiled fpsample on each cloud (CPU, several times faster
+    there). The default picks fpsample for CPU tensors and torch elsewhere. Both follow the
+    same rule and are tested against :func:`farthest_point_sample_reference`; they can differ
+    only in which of several exactly equidistant points they take.
+    """
+    if backend is None:
+        backend = "fpsample" if points.device.type == "cpu" else "torch"
+    if backend not in ("torch", "fpsample"):
+        raise ValueError(f"backend must be 'torch' or 'fpsample', got {backend!r}")
+    if start is None:
+        centroid = masked_centroid(points, mask)
+        spread = ((points - centroid[:, None]) ** 2).sum(-1)
+        if mask is not None:
+            spread = spread.masked_fill(~mask, -1.0)
+        start = spread.argmax(dim=1)
+    if backend == "fpsample":
+        return _farthest_point_sample_fpsample(points, size, mask, start)
+    return _farthest_point_sample_torch(points, size, mask, start)
+
+
+def _farthest_point_sample_fpsample(
+    points: torch.Tensor, size: int, mask: torch.Tensor | None, start: torch.Tensor
+) -> torch.Tensor:
+    array = points.detach().cpu().numpy()
+    counts = mask.sum(dim=1).tolist() if mask is not None else [points.shape[1]] * len(points)
+    chosen = np.stack([
+        farthest_point_sample(array[b, :count], size, start=int(start[b]))
+        for b, count in enumerate(counts)
+    ])
+    return torch.from_numpy(chosen).to(points.device)
+
+
+def _farthest_point_sample_torch(
+    points: torch.Tensor, size: int, mask: torch.Tensor | None, start: torch.Tensor
+) -> torch.Tensor:
+    batch, count, _ = points.shape
+    rows = torch.arange(batch, device=points.device)
+    chosen = torch.empty(batch, size, dtype=torch.long, device=points.device)
+    distance = torch.full((batch, count), float("inf"), dtype=points.dtype, device=points.device)
+    if mask is not None:
+        distance = distance.masked_fill(~mask, -1.0)
+    last = start
+    for i in range(size):
+        chosen[:, i] = last
+        step = ((points - points[rows, last][:, None]) ** 2).sum(-1)
+        distance = torch.minimum(distance, step)
+        last = distance.argmax(dim=1)
+        # When every real point is chosen all distances are 0 (padding -1): argmax would pick
+        # index 0; repeat the start instead so exhausted clouds stay on a real point.
+        exhausted = distance[rows, last] <= 0
+        last = torch.where(exhausted, start, last)
+    return chosen
+
+
+def farthest_point_sample_reference(
+    points: torch.Tensor, size: int, start: int
+) -> torch.Tensor:
+    """The definition of farthest point sampling, written plainly for one ``(N, 3)`` cloud.
+
+    Slow (a Python loop over samples and a full distance recomputation each time) and meant
+    only as the yardstick the fast versions are tested against. Returns ``(size,)`` int64
+    indices; ``size`` must not exceed N.
+    """
+    chosen = [start]
+    for _ in range(size - 1):
+        to_chosen = torch.cdist(points, points[chosen]).min(dim=1).values
+        chosen.append(int(to_chosen.argmax()))
+    return torch.tensor(chosen, dtype=torch.long)
+
+
+def square_distances(query: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """``(B, M, N)`` squared Euclidean distances between ``(B, M, 3)`` and ``(B, N, 3)``.
+
+    Computed directly as ``sum((q - p)²)`` rather than ``|q|² + |p|² - 2 q·p``, which loses
+    precision exactly where neighbourhoods are decided (small distances).
+    One coordinate at a time, so the largest temporary is ``(B, M, N)``, not ``(B, M, N, 3)``.
+    """
+    distance = (query[:, :, None, 0] - points[:, None, :, 0]) ** 2
+    for axis in (1, 2):
+        distance = distance + (query[:, :, None, axis] - points[:, None, :, axis]) ** 2
+    return distance
+
+
+def knn(
+    query: torch.Tensor, points: torch.Tensor, k: int, mask: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ``k`` nearest points to each query: ``(B, M, k)`` squared distances and indices.
+
+    ``query`` ``(B, M, 3)``, ``points`` ``(B, N, 3)``; padding points (``mask`` False) are
+    never returned. Exact brute force, nearest first, in chunks of queries to bound memory.
+    ``k`` must not exceed the number of points.
+    """
+    distances, indices = [], []
+    for lo in range(0, query.shape[1], QUERY_CHUNK):
+        d = square_distances(query[:, lo : lo + QUERY_CHUNK], points)
+        if mask is not None:
+            d = d.masked_fill(~mask[:, None, :], float("inf"))
+        nearest = torch.topk(d, k, dim=-1, largest=False, sorted=True)
+        distances.append(nearest.values)
+        indices.append(nearest.indices)
+    return torch.cat(distances, dim=1), torch.cat(indices, dim=1)
+
+
+def ball_query(
+    centroids: torch.Tensor,
+    points: torch.Tensor,
+    radius: float,
+    size: int,
+    mask: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """``(B, S, size)`` indices of up to ``size`` points within ``radius`` of each centroid.
+
+    The ``size`` nearest points inside the ball, padded by repeating the nearest (a centroid
+    taken from the cloud is its own nearest point, so every group is non-empty). PointNet++'s
+    original CUDA kernel takes the first ``size`` in-ball points in storage order instead; the
+    nearest ones are a ball query whose answer does not depend on the order of the points,
+    which the model's permutation invariance needs.
+    """
+    count = points.shape[1]
+    within = min(size, count)
+    distance, index = knn(centroids, points, within, mask)
+    outside = distance > radius * radius
+    index = torch.where(outside, index[..., :1], index)
+    if within < size:
+        index = torch.cat([index, index[..., :1].expand(-1, -1, size - within)], dim=-1)
+    return index

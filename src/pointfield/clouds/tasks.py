@@ -1,0 +1,671 @@
+"""Classification and segmentation of point clouds: what ``pointfield classify`` and
+``pointfield segment`` do, as functions of a task name.
+
+:func:`train` opens the data (a folder, ModelNet, or the built-in synthetic shapes), builds a
+model from :mod:`pointfield.clouds.models`, and hands both to the training loop of
+:mod:`pointfield.training` with the two callables it needs (the batches of an epoch and the
+loss of a batch). :func:`evaluate` scores a finished run; :func:`predict` applies it to files.
+
+The recipe, the same for every model unless told otherwise:
+
+- preparation: drop non-finite points, centre and scale into the unit sphere, sample
+  ``points`` points (random in training; a fixed random subset per shape in evaluation);
+- augmentation (training only): stretch each axis by 0.8..1.25, shift by up to 0.1, jitter
+  every coordinate with N(0, 0.01²) clipped to 0.05 — PointNet++'s ModelNet recipe;
+- optimisation: Adam, learning rate 0.001, weight decay 1e-4, cosine decay to 1 % of it over
+  the epochs; cross-entropy loss plus the model's regulariser;
+- BatchNorm momentum as in the PointNet papers' code: 0.5, halved every 200,000 training
+  samples, never below 0.01. Running statistics start from mean 0 and variance 1; with
+  PyTorch's default 0.1 a layer whose true variance is far from 1 needs hundreds of steps
+  before evaluation sees it right, which a short run on a CPU may never take.
+
+Prediction never samples at random: it keeps the ``points`` points that
+:func:`~pointfield.clouds.ops.canonical_sample` chooses from their coordinates, so a file and
+the same file with its points shuffled get the same answer.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from pointfield.clouds import ops
+from pointfield.clouds.cloud import PointCloud
+from pointfield.clouds.datasets import (
+    DEFAULT_MESH_POINTS,
+    PART_LABEL_FIELD,
+    CloudCollate,
+    CloudDataset,
+    CloudFolder,
+    ModelNet,
+    default_cache_dir,
+    modelnet_source,
+)
+from pointfield.clouds.mesh import Mesh
+from pointfield.clouds.models import MODEL_NAMES, MODEL_OPTIONS, build_model, count_parameters
+from pointfield.clouds.transforms import (
+    Compose,
+    NormaliseScale,
+    RandomJitter,
+    RandomScale,
+    RandomShift,
+    SamplePoints,
+)
+from pointfield.errors import FormatError, PointfieldError
+from pointfield.metrics import accuracy, class_iou, confusion_matrix, mean_class_accuracy, mean_iou
+
+TASKS = ("classify", "segment")
+DEFAULT_POINTS = 1024
+DEFAULT_EPOCHS = {"pointnet": 10, "pointnet2": 5, "pointnet2-msg": 5}
+DEFAULT_BATCH_SIZE = {"pointnet": 32, "pointnet2": 16, "pointnet2-msg": 16}
+LEARNING_RATE = 1e-3
+WEIGHT_DECAY = 1e-4
+FINAL_LEARNING_RATE_FRACTION = 0.01
+BATCHNORM_MOMENTUM = (0.5, 200_000, 0.01)  # start, samples per halving, floor
+MAX_POINTS_PER_POINT = 16  # clouds keep at most 16 x `points` points in memory
+CURVES_PNG = "training_curves.png"
+CONFUSION_PNG = "confusion_matrix.png"
+
+
+# ---------------------------------------------------------------------------------------------
+# Data
+# ---------------------------------------------------------------------------------------------
+
+
+def training_transform(points: int) -> Compose:
+    return Compose([
+        NormaliseScale(), SamplePoints(points), RandomScale(0.8, 1.25), RandomShift(0.1),
+        RandomJitter(0.01, clip=0.05),
+    ])
+
+
+def evaluation_transform(points: int) -> Compose:
+    return Compose([NormaliseScale(), SamplePoints(points)])
+
+
+def open_data(
+    task: str,
+    data: str | os.PathLike[str] | None,
+    split: str,
+    *,
+    seed: int = 0,
+    on_error: str = "skip",
+    label_field: str = PART_LABEL_FIELD,
+    shapes_per_class: int | None = None,
+    classes: Sequence[str] | None = None,
+    points: int = DEFAULT_POINTS,
+    mesh_points: int = DEFAULT_MESH_POINTS,
+    progress: bool = False,
+) -> CloudDataset:
+    """The ``split`` of ``data`` for ``task``, without transforms.
+
+    ``data`` None: the synthetic shapes (``shapes_per_class`` training shapes per class, 30 %
+    as many test shapes, each of ``points`` to ``2 * points`` points). A folder of ModelNet
+    ``.h5`` or ``_normal_resampled`` files: :class:`ModelNet`. Any other folder: :class:`CloudFolder`, meshes sampled once and cached
+    under :func:`default_cache_dir`; for segmentation its clouds need the per-point integer
+    field ``label_field``. ``classes`` fixes the class order (that of a trained model).
+    """
+    from pointfield.clouds.shapes import SyntheticShapes
+
+    if data is None:
+        per_class = shapes_per_class or 100
+        count = per_class if split == "train" else max(1, round(per_class * 0.3))
+        return SyntheticShapes(split, count, points=(points, 2 * points), seed=seed)
+    root = Path(data)
+    if not root.is_dir():
+        raise PointfieldError(f"{root}: DATA must be a folder of point clouds (or ModelNet)")
+    if task == "classify" and modelnet_source(root) in ("h5", "txt"):
+        dataset = ModelNet(root, split, seed=seed, on_error=on_error, progress=progress)
+        if classes is not None and list(dataset.classes) != list(classes):
+            raise PointfieldError(
+                f"{root}: its classes {dataset.classes} are not those the model was trained on"
+            )
+        return dataset
+    dataset = CloudFolder(
+        root, split, seed=seed, on_error=on_error, mesh_points=mesh_points,
+        max_points=MAX_POINTS_PER_POINT * points,
+        label_field=label_field if task == "segment" else None,
+        cache_dir=default_cache_dir() / "meshes", classes=classes, progress=progress,
+    )
+    if task == "classify" and (not dataset.classes or any(label < 0 for label in dataset.labels)):
+        raise PointfieldError(
+            f"{root}: classification needs one subfolder per class (e.g. {root}/chair/*.ply)"
+        )
+    return dataset
+
+
+def _check_not_empty(dataset: CloudDataset, split: str, data: Any) -> None:
+    if len(dataset) == 0:
+        where = data if data is not None else "the synthetic shapes"
+        raise PointfieldError(f"{where}: no {split} clouds to use")
+
+
+# ---------------------------------------------------------------------------------------------
+# Training
+# ---------------------------------------------------------------------------------------------
+
+
+def train(
+    task: str,
+    data: str | os.PathLike[str] | None = None,
+    *,
+    model: str = "pointnet",
+    epochs: int | None = None,
+    batch_size: int | None = None,
+    points: int = DEFAULT_POINTS,
+    out: str | os.PathLike[str] = "run",
+    device: str | None = None,
+    seed: int = 0,
+    resume: bool = False,
+    normals: bool = False,
+    input_transform: bool = True,
+    feature_transform: bool = True,
+    learning_rate: float = LEARNING_RATE,
+    workers: int = 0,
+    on_error: str = "skip",
+    label_field: str = PART_LABEL_FIELD,
+    shapes_per_class: int | None = None,
+    checkpoint_seconds: float | None = 300.0,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Train a classifier or segmenter and write its run folder; returns the final metrics.
+
+    With ``resume`` the run in ``out`` continues from its last checkpoint with the settings in
+    its ``config.json`` (only ``epochs``, if given, may raise the number of epochs). Launched
+    by ``torchrun`` with several processes, this trains with DistributedDataParallel.
+    """
+    from pointfield.training import RunDirectory, distributed, fit, unwrap
+
+    _check_task(task)
+    dist_info, device_used = distributed.setup(device)
+    is_main = dist_info is None or dist_info.is_main
+    try:
+        run = RunDirectory(out)
+        if resume and run.exists():
+            config = run.read_config()
+            if config.get("task") != task:
+                raise PointfieldError(f"{run.path} is a {config.get('task')} run, not {task}")
+            if epochs is not None:
+                config["epochs"] = epochs
+        else:
+            if model not in MODEL_NAMES:
+                raise PointfieldError(
+                    f"unknown model {model!r}: expected one of {', '.join(MODEL_NAMES)}"
+                )
+            config = _new_config(
+                task, data, model, epochs, batch_size, points, seed, normals, input_transform,
+                feature_transform, learning_rate, label_field, shapes_per_class,
+            )
+        if is_main:
+            run.create(resume)
+        torch.manual_seed(config["seed"])
+        train_set, test_set = _open_pair(config, on_error, progress and is_main)
+        config.update(_data_summary(train_set, test_set, config))
+        if is_main:
+            config["world_size"] = dist_info.world_size if dist_info else 1
+            config["device"] = str(device_used)
+            run.write_config(config)
+        net = _build(config).to(device_used)
+        parameters = count_parameters(net)
+        trained = distributed.wrap(net, dist_info, device_used)
+        optimizer = torch.optim.Adam(
+            trained.parameters(), lr=config["learning_rate"], weight_decay=WEIGHT_DECAY
+        )
+        scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
+            optimizer, T_max=max(config["epochs"], 1),
+            eta_min=config["learning_rate"] * FINAL_LEARNING_RATE_FRACTION,
+        )
+        collate = CloudCollate(config["features"], point_labels=task == "segment")
+        train_set = train_set.with_transform(training_transform(config["points"]))
+        test_set = test_set.with_transform(evaluation_transform(config["points"]))
+        last_confusion: dict[str, np.ndarray] = {}
+
+        def batches(epoch: int) -> torch.utils.data.DataLoader:
+            set_batchnorm_momentum(net, epoch * len(train_set))
+            train_set.set_epoch(epoch)
+            return _training_loader(
+                train_set, config, collate, epoch, workers, dist_info, device_used
+            )
+
+        def step(batch: Any) -> tuple[torch.Tensor, dict[str, float]]:
+            return _loss(trained, unwrap(trained), batch.to(device_used), task)
+
+        def evaluate_epoch(epoch: int) -> dict[str, float]:
+            confusion = confusion_on(
+                unwrap(trained), test_set, task, config, collate, device_used, dist_info
+            )
+            last_confusion["matrix"] = confusion
+            return {f"test_{k}": v for k, v in _scores(confusion, task).items()}
+
+        def draw(history: list[dict[str, Any]]) -> None:
+            from pointfield.viz.plots import plot_training_curves
+
+            plot_training_curves(history, run.path / CURVES_PNG, title=_title(config))
+
+        if is_main:
+            print(f"{task} {config['model']}: {parameters:,} parameters on {device_used}; "
+                  f"{config['data_description']}")
+        state = fit(
+            trained, optimizer, step, batches, config["epochs"], run=run,
+            identity=identity_of(config), scheduler=scheduler, evaluate=evaluate_epoch,
+            on_epoch_end=draw, resume=resume, checkpoint_seconds=checkpoint_seconds,
+            distributed=dist_info, device=device_used, progress=progress,
+        )
+        confusion = last_confusion.get("matrix")
+        if confusion is None:  # a resumed run that had already finished its epochs
+            confusion = confusion_on(net, test_set, task, config, collate, device_used, dist_info)
+        final = {
+            **_scores(confusion, task),
+            "per_class": _per_class(confusion, task, _label_names(config)),
+            "epochs": state.epoch,
+            "seconds": round(state.seconds, 3),
+            "test_samples": len(test_set),
+            "train_samples": len(train_set),
+            "model": config["model"],
+            "parameters": parameters,
+        }
+        if is_main:
+            from pointfield.viz.plots import plot_confusion_matrix, plot_training_curves
+
+            run.write_final_metrics(final)
+            plot_confusion_matrix(confusion, _label_names(config), run.path / CONFUSION_PNG,
+                                  title=_title(config))
+            if state.history:
+                plot_training_curves(state.history, run.path / CURVES_PNG, title=_title(config))
+        return final
+    finally:
+        distributed.shutdown()
+
+
+def _new_config(
+    task, data, model, epochs, batch_size, points, seed, normals, input_transform,
+    feature_transform, learning_rate, label_field, shapes_per_class,
+) -> dict[str, Any]:
+    import pointfield
+
+    options = dict(MODEL_OPTIONS[model])
+    if model == "pointnet":
+        options.update(input_transform=input_transform, feature_transform=feature_transform)
+    if points < 1:
+        raise PointfieldError(f"--points must be at least 1, got {points}")
+    return {
+        "task": task,
+        "model": model,
+        "model_options": options,
+        "data": None if data is None else str(Path(data).resolve()),
+        "points": points,
+        "epochs": epochs if epochs is not None else DEFAULT_EPOCHS[model],
+        "batch_size": batch_size or DEFAULT_BATCH_SIZE[model],
+        "learning_rate": learning_rate,
+        "seed": seed,
+        "features": ["normals"] if normals else [],
+        "label_field": label_field,
+        "shapes_per_class": shapes_per_class,
+        "mesh_points": DEFAULT_MESH_POINTS,
+        "pointfield_version": pointfield.__version__,
+    }
+
+
+def _open_pair(
+    config: dict[str, Any], on_error: str, progress: bool
+) -> tuple[CloudDataset, CloudDataset]:
+    options = dict(
+        seed=config["seed"], on_error=on_error, label_field=config["label_field"],
+        shapes_per_class=config["shapes_per_class"], points=config["points"],
+        mesh_points=config["mesh_points"], progress=progress,
+    )
+    train_set = open_data(config["task"], config["data"], "train", **options)
+    _check_not_empty(train_set, "train", config["data"])
+    test_set = open_data(
+        config["task"], config["data"], "test", classes=train_set.classes, **options
+    )
+    _check_not_empty(test_set, "test", config["data"])
+    if config["task"] == "segment" and not train_set.parts:
+        raise PointfieldError(f"{config['data']}: these clouds carry no per-point labels")
+    return train_set, test_set
+
+
+def _data_summary(
+    train_set: CloudDataset, test_set: CloudDataset, config: dict[str, Any]
+) -> dict[str, Any]:
+    description = f"{train_set.describe()}; test: {len(test_set)} clouds"
+    if getattr(train_set, "held_out", False):
+        description += " (held out of the files: the data has no test split)"
+    parts = None
+    if config["task"] == "segment":
+        # A test file may use a higher label than any training file: cover both.
+        parts = max(list(train_set.parts or []), list(test_set.parts or []), key=len)
+    return {
+        "classes": list(train_set.classes),
+        "parts": parts,
+        "train_samples": len(train_set),
+        "test_samples": len(test_set),
+        "data_description": description,
+    }
+
+
+def _training_loader(
+    dataset: CloudDataset, config: dict[str, Any], collate: CloudCollate, epoch: int,
+    workers: int, dist_info: Any, device: torch.device,
+) -> torch.utils.data.DataLoader:
+    """This epoch's batches: shuffled by a generator seeded with (seed, epoch)."""
+    if dist_info is not None:
+        sampler = torch.utils.data.DistributedSampler(
+            dataset, dist_info.world_size, dist_info.rank, shuffle=True, seed=config["seed"]
+        )
+        sampler.set_epoch(epoch)
+        share = len(sampler)
+    else:
+        generator = torch.Generator().manual_seed(config["seed"] * 100_003 + epoch)
+        sampler = torch.utils.data.RandomSampler(dataset, generator=generator)
+        share = len(dataset)
+    # BatchNorm cannot train on a batch of one; dropping the last partial batch avoids it.
+    batch_size = max(2, min(config["batch_size"], share))
+    return torch.utils.data.DataLoader(
+        dataset, batch_size=batch_size, sampler=sampler, collate_fn=collate,
+        num_workers=workers, drop_last=share >= 2, pin_memory=device.type == "cuda",
+    )
+
+
+def set_batchnorm_momentum(model: torch.nn.Module, samples_seen: int) -> float:
+    """Set every BatchNorm's momentum to ``max(0.5 * 0.5^(samples / 200000), 0.01)``."""
+    start, halving, floor = BATCHNORM_MOMENTUM
+    momentum = max(start * 0.5 ** (samples_seen / halving), floor)
+    for module in model.modules():
+        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
+            module.momentum = momentum
+    return momentum
+
+
+def _loss(
+    model: torch.nn.Module, inner: torch.nn.Module, batch: Any, task: str
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """Cross-entropy (per shape or per real point) plus the model's regulariser."""
+    logits = model(batch.points, batch.features, batch.mask)
+    if task == "classify":
+        loss = F.cross_entropy(logits, batch.labels)
+        correct = (logits.argmax(dim=-1) == batch.labels).float().mean()
+    else:
+        target = batch.point_labels.reshape(-1)
+        loss = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target, ignore_index=-1)
+        real = target >= 0
+        correct = (logits.reshape(-1, logits.shape[-1]).argmax(-1)[real] == target[real]).float()
+        correct = correct.mean()
+    return loss + inner.regulariser, {"accuracy": float(correct)}
+
+
+# ---------------------------------------------------------------------------------------------
+# Evaluation
+# ---------------------------------------------------------------------------------------------
+
+
+def confusion_on(
+    model: torch.nn.Module,
+    dataset: CloudDataset,
+    task: str,
+    config: dict[str, Any],
+    collate: CloudCollate,
+    device: torch.device,
+    dist_info: Any = None,
+) -> np.ndarray:
+    """The confusion matrix of ``model`` over ``dataset`` (summed over processes)."""
+    from pointfield.training.distributed import shard
+
+    classes = len(_label_names(config))
+    subset = torch.utils.data.Subset(dataset, shard(len(dataset), dist_info))
+    loader = torch.utils.data.DataLoader(
+        subset, batch_size=config["batch_size"], shuffle=False, collate_fn=collate
+    )
+    confusion = np.zeros((classes, classes), np.int64)
+    was_training = model.training
+    model.eval()
+    with torch.inference_mode():
+        for batch in loader:
+            batch = batch.to(device)
+            predicted = model(batch.points, batch.features, batch.mask).argmax(dim=-1)
+            target = batch.labels if task == "classify" else batch.point_labels
+            confusion += confusion_matrix(target, predicted, classes)
+    model.train(was_training)
+    if dist_info is not None:
+        totals = torch.from_numpy(confusion).to(device)
+        confusion = dist_info.all_reduce_sum(totals).cpu().numpy()
+    return confusion
+
+
+def _scores(confusion: np.ndarray, task: str) -> dict[str, float]:
+    scores = {"accuracy": accuracy(confusion), "mean_class_accuracy": mean_class_accuracy(confusion)}
+    if task == "segment":
+        scores["miou"] = mean_iou(confusion)
+    return scores
+
+
+def _per_class(confusion: np.ndarray, task: str, names: Sequence[str]) -> dict[str, float | None]:
+    from pointfield.metrics import class_accuracies
+
+    values = class_iou(confusion) if task == "segment" else class_accuracies(confusion)
+    return {name: None if np.isnan(v) else float(v) for name, v in zip(names, values)}
+
+
+def evaluate(
+    task: str,
+    run: str | os.PathLike[str],
+    data: str | os.PathLike[str] | None = None,
+    *,
+    device: str | None = None,
+    on_error: str = "skip",
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Score a trained run on the test split of ``data`` (default: the data it trained on).
+
+    Returns ``accuracy``, ``mean_class_accuracy`` (and ``miou`` for segmentation), the score
+    of each class (``per_class``: accuracy, or IoU for segmentation), the ``confusion`` matrix
+    as a list of rows, and the number of ``samples``.
+    """
+    from pointfield.devices import pick_device
+
+    config, model, _ = load_run(task, run, pick_device(device))
+    data = data if data is not None else config["data"]
+    dataset = open_data(
+        task, data, "test", seed=config["seed"], on_error=on_error,
+        label_field=config["label_field"], shapes_per_class=config["shapes_per_class"],
+        classes=config["classes"] if data is not None else None, points=config["points"],
+        mesh_points=config["mesh_points"], progress=progress,
+    )
+    _check_not_empty(dataset, "test", data)
+    if task == "segment" and dataset.parts and len(dataset.parts) > len(config["parts"]):
+        raise PointfieldError(
+            f"{data}: its labels go up to {len(dataset.parts) - 1}, but the model knows "
+            f"{len(config['parts'])} parts"
+        )
+    collate = CloudCollate(config["features"], point_labels=task == "segment")
+    dataset = dataset.with_transform(evaluation_transform(config["points"]))
+    device_used = next(model.parameters()).device
+    confusion = confusion_on(model, dataset, task, config, collate, device_used)
+    return {
+        **_scores(confusion, task),
+        "per_class": _per_class(confusion, task, _label_names(config)),
+        "confusion": confusion.tolist(),
+        "samples": len(dataset),
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# Prediction
+# ---------------------------------------------------------------------------------------------
+
+
+def load_run(
+    task: str, run: str | os.PathLike[str], device: torch.device
+) -> tuple[dict[str, Any], torch.nn.Module, Path]:
+    """A run's config and its trained model (in evaluation mode, on ``device``)."""
+    from pointfield.training import RunDirectory, load_checkpoint, restore
+
+    folder = RunDirectory(run)
+    config = folder.read_config()
+    if config.get("task") != task:
+        raise PointfieldError(f"{folder.path} is a {config.get('task')!r} run, not {task!r}")
+    if "classes" not in config:
+        raise PointfieldError(f"{folder.path}: the run never got as far as opening its data")
+    payload = load_checkpoint(folder.checkpoint, identity_of(config), map_location=device)
+    model = _build(config)
+    restore(folder.checkpoint, payload, model)
+    return config, model.to(device).eval(), folder.path
+
+
+def prepare_for_prediction(
+    path: Path, config: dict[str, Any]
+) -> tuple[PointCloud, PointCloud, np.ndarray, float]:
+    """Read a file as the model needs it: ``(as read, model input, centre, radius)``.
+
+    Meshes are surface-sampled (seeded by file name). The model input is the canonical sample
+    of ``points`` finite points, mapped by ``(p - centre) / radius`` into the unit sphere of
+    all the finite points.
+    """
+    import pointfield
+
+    data = pointfield.read(path)
+    if not isinstance(data, PointCloud):
+        raise FormatError(path, "holds records without x y z coordinates, not a point cloud")
+    source = data
+    if isinstance(data, Mesh) and len(data.faces):
+        seed = int.from_bytes(hashlib.sha1(path.name.encode()).digest()[:4], "little")
+        try:
+            source = data.sample_surface(config["mesh_points"], seed=seed)
+        except ValueError as error:
+            raise FormatError(path, f"cannot sample the mesh surface: {error}") from None
+    finite = ops.finite_rows(source.points)
+    if not finite.any():
+        raise FormatError(path, "has no points with finite coordinates")
+    for name in config["features"]:
+        if name not in source.fields:
+            raise FormatError(path, f"has no {name!r} field, which this model takes as input")
+    clean = source.select(finite)
+    centre, radius = ops.unit_sphere_frame(clean.points)
+    chosen = clean.select(ops.canonical_sample(clean.points, config["points"]))
+    points = ((chosen.points.astype(np.float64) - centre) / radius).astype(np.float32)
+    prepared = PointCloud(points, chosen.fields)
+    return data, prepared, centre, radius
+
+
+def predict(
+    task: str,
+    run: str | os.PathLike[str],
+    files: Sequence[str | os.PathLike[str]],
+    *,
+    device: str | None = None,
+    out: str | os.PathLike[str] | None = None,
+) -> list[dict[str, Any]]:
+    """Apply a trained run to files.
+
+    Classification: one dict per file with ``file``, ``class``, ``probability`` and
+    ``probabilities`` (class name -> probability). Segmentation: every point of each file gets
+    the part of its nearest model-input point, and the cloud (a mesh keeps its faces) is
+    written with an int32 ``label`` field to ``out/<stem>.ply`` (default ``RUN/predictions``);
+    one dict per file with ``file``, ``output``, ``points`` and ``parts`` (part name -> count).
+    """
+    import pointfield
+    from pointfield.devices import pick_device
+
+    device_used = pick_device(device)
+    config, model, run_path = load_run(task, run, device_used)
+    paths = [Path(f) for f in files]
+    if not paths:
+        raise PointfieldError("no files to predict")
+    collate = CloudCollate(config["features"])
+    out_dir = Path(out) if out is not None else run_path / "predictions"
+    if task == "segment":
+        stems = [p.stem for p in paths]
+        duplicate = next((s for s in stems if stems.count(s) > 1), None)
+        if duplicate is not None:
+            raise PointfieldError(f"two inputs are named {duplicate!r}: their outputs would clash")
+    results = []
+    for path in paths:
+        data, prepared, centre, radius = prepare_for_prediction(path, config)
+        batch = collate([(prepared, 0)]).to(device_used)
+        with torch.inference_mode():
+            logits = model(batch.points, batch.features, batch.mask)[0].float()
+        if task == "classify":
+            probabilities = torch.softmax(logits, dim=-1).cpu().numpy()
+            best = int(probabilities.argmax())
+            results.append({
+                "file": str(path),
+                "class": config["classes"][best],
+                "probability": float(probabilities[best]),
+                "probabilities": {
+                    name: float(p) for name, p in zip(config["classes"], probabilities)
+                },
+            })
+            continue
+        input_labels = logits.argmax(dim=-1).cpu()
+        labels = np.full(len(data), -1, np.int32)
+        targets = np.flatnonzero(ops.finite_rows(data.points))
+        if len(targets):
+            moved = (data.points[targets].astype(np.float64) - centre) / radius
+            _, nearest = ops.knn(
+                torch.from_numpy(moved.astype(np.float32))[None],
+                torch.from_numpy(prepared.points)[None], 1,
+            )
+            labels[targets] = input_labels[nearest[0, :, 0]].numpy()
+        out_dir.mkdir(parents=True, exist_ok=True)
+        output = out_dir / f"{path.stem}.ply"
+        pointfield.write(output, _with_field(data, PART_LABEL_FIELD, labels))
+        counts = np.bincount(labels[labels >= 0], minlength=len(config["parts"]))
+        results.append({
+            "file": str(path),
+            "output": str(output),
+            "points": int(len(labels)),
+            "parts": {name: int(c) for name, c in zip(config["parts"], counts) if c},
+        })
+    return results
+
+
+def _with_field(data: PointCloud, name: str, values: np.ndarray) -> PointCloud:
+    fields = {**data.fields, name: values}
+    if isinstance(data, Mesh):
+        return Mesh(data.points, fields, data.shape, dict(data.metadata), faces=data.faces,
+                    face_fields=dict(data.face_fields))
+    return PointCloud(data.points, fields, data.shape, dict(data.metadata))
+
+
+# ---------------------------------------------------------------------------------------------
+# Helpers
+# ---------------------------------------------------------------------------------------------
+
+
+def identity_of(config: dict[str, Any]) -> dict[str, Any]:
+    """What a run's checkpoints must match: task, model and its options, and the outputs."""
+    return {
+        "task": config["task"],
+        "model": config["model"],
+        "model_options": config["model_options"],
+        "features": config["features"],
+        "outputs": len(_label_names(config)),
+    }
+
+
+def _build(config: dict[str, Any]) -> torch.nn.Module:
+    in_channels = 3 * len(config["features"])
+    return build_model(
+        config["model"], config["task"], len(_label_names(config)), in_channels,
+        **config["model_options"],
+    )
+
+
+def _label_names(config: dict[str, Any]) -> list[str]:
+    return config["classes"] if config["task"] == "classify" else config["parts"]
+
+
+def _title(config: dict[str, Any]) -> str:
+    return f"{config['task']} · {config['model']} · {config['points']} points"
+
+
+def _check_task(task: str) -> None:
+    if task not in TASKS:
+        raise PointfieldError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")

@@ -1,0 +1,246 @@
+"""The one training loop that every pointfield model plugs into.
+
+A model plugs in with two callables:
+
+- ``batches(epoch) -> iterable of batches``: that epoch's data, the same every time it is
+  asked for (seed the shuffling with the epoch), so a resumed run sees what it would have seen;
+- ``step(batch) -> (loss, stats)``: the forward pass and the loss (a scalar tensor with
+  gradients), plus any per-batch numbers worth logging (``{"accuracy": 0.9}``).
+
+:func:`fit` does the rest: zero the gradients, backpropagate, step the optimizer; average the
+loss and stats over the epoch (over all processes, in a distributed run); call ``evaluate``
+after each epoch; log one record per epoch to ``metrics.jsonl``; checkpoint at the end of each
+epoch and every ``checkpoint_seconds`` within one; resume from the last checkpoint; stop at
+``max_seconds``; show a progress bar. A loss that is NaN or infinite stops training with an
+error naming the epoch and step, never a silently ruined model.
+
+Resuming restores the model, optimizer, scheduler, torch's random generator and the position
+within the epoch, and rewrites ``metrics.jsonl`` from the history kept in the checkpoint, so
+a run killed at any moment — even between two files being written — resumes and finishes
+with one line per epoch.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import sys
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import torch
+from torch import nn
+
+from pointfield.errors import PointfieldError
+from pointfield.training.checkpoints import load_checkpoint, restore, save_checkpoint
+from pointfield.training.distributed import Distributed
+from pointfield.training.run import RunDirectory
+
+StepFunction = Callable[[Any], tuple[torch.Tensor, dict[str, float]]]
+
+
+@dataclass
+class TrainingState:
+    """Where training stands; saved in every checkpoint.
+
+    ``epoch`` epochs and ``step`` optimizer steps are finished; ``batch`` batches of the
+    current epoch are done (0 at an epoch boundary); ``seconds`` of training so far, over all
+    sessions; ``history`` holds one record per finished epoch; ``running`` the sums behind the
+    current epoch's averages.
+    """
+
+    epoch: int = 0
+    step: int = 0
+    batch: int = 0
+    seconds: float = 0.0
+    history: list[dict[str, Any]] = field(default_factory=list)
+    running: dict[str, float] = field(default_factory=dict)
+
+
+def fit(
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    step: StepFunction,
+    batches: Callable[[int], Iterable[Any]],
+    epochs: int,
+    *,
+    run: RunDirectory | None = None,
+    identity: dict[str, Any] | None = None,
+    scheduler: Any = None,
+    evaluate: Callable[[int], dict[str, float]] | None = None,
+    on_epoch_end: Callable[[list[dict[str, Any]]], None] | None = None,
+    resume: bool = False,
+    checkpoint_seconds: float | None = 300.0,
+    max_seconds: float | None = None,
+    distributed: Distributed | None = None,
+    device: torch.device | None = None,
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> TrainingState:
+    """Train ``model`` for ``epochs`` epochs; returns the final :class:`TrainingState`.
+
+    ``run`` is where checkpoints and ``metrics.jsonl`` go (None: keep nothing). In a
+    distributed run every process passes the same ``run`` (all read the checkpoint when
+    resuming) and only rank 0 writes. ``evaluate(epoch)`` returns metrics to add to the
+    epoch's record (it must be collective in a distributed run); ``on_epoch_end(history)``
+    runs on rank 0 after each record is logged (to redraw plots, say). ``identity`` is stored
+    in checkpoints and must match when resuming. ``log`` receives one line per epoch
+    (default: printed above the progress bar).
+    """
+    is_main = distributed is None or distributed.is_main
+    device = device or next(model.parameters()).device
+    write = log or (lambda line: _progress_write(line))
+    state = TrainingState()
+    if resume and run is not None and run.checkpoint.is_file():
+        payload = load_checkpoint(run.checkpoint, identity, map_location=device)
+        restore(run.checkpoint, payload, model, optimizer, scheduler, rng=True)
+        state = TrainingState(**payload["state"])
+        if is_main:
+            run.write_metrics_log(state.history)
+            write(f"resuming {run.path} at epoch {state.epoch + 1}, batch {state.batch}")
+
+    def checkpoint() -> None:
+        if run is not None and is_main:
+            save_checkpoint(
+                run.checkpoint, identity=identity or {}, model=model, optimizer=optimizer,
+                scheduler=scheduler, state=asdict(state),
+            )
+
+    session_start = time.perf_counter()
+    seconds_before = state.seconds
+    last_checkpoint = time.perf_counter()
+    out_of_time = False
+    while state.epoch < epochs and not out_of_time:
+        model.train()
+        epoch_batches = batches(state.epoch)
+        total = _length(epoch_batches)
+        remaining = itertools.islice(epoch_batches, state.batch, None)
+        bar = _progress_bar(total, state, epochs, progress and is_main)
+        for batch in remaining:
+            loss, stats = step(batch)
+            finite = bool(torch.isfinite(loss.detach()).item())
+            if distributed is not None:
+                finite = distributed.all_true(finite, device)
+            if not finite:
+                bar.close()
+                raise PointfieldError(
+                    f"the loss became {loss.item() if loss.numel() == 1 else 'non-finite'} at "
+                    f"epoch {state.epoch + 1}, step {state.step + 1}: the data may hold NaN or "
+                    f"infinite values, or the learning rate is too high; nothing was saved "
+                    f"from this step"
+                )
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            state.step += 1
+            state.batch += 1
+            _accumulate(state.running, {"loss": float(loss.detach()), **stats})
+            state.seconds = seconds_before + time.perf_counter() - session_start
+            bar.update(1)
+            bar.set_postfix(loss=f"{state.running['loss'] / state.running['batches']:.4f}")
+            if max_seconds is not None and state.seconds >= max_seconds:
+                out_of_time = True
+            if out_of_time or (
+                checkpoint_seconds is not None
+                and time.perf_counter() - last_checkpoint >= checkpoint_seconds
+            ):
+                if out_of_time or total is None or state.batch < total:
+                    checkpoint()
+                    last_checkpoint = time.perf_counter()
+            if out_of_time:
+                break
+        bar.close()
+        if out_of_time and total is not None and state.batch < total:
+            break
+        record = _finish_epoch(state, distributed, device)
+        if scheduler is not None:
+            scheduler.step()
+        record["lr"] = optimizer.param_groups[0]["lr"]
+        if evaluate is not None:
+            record.update(evaluate(state.epoch))
+        state.epoch += 1
+        state.seconds = seconds_before + time.perf_counter() - session_start
+        record = {"epoch": state.epoch, "step": state.step, "seconds": round(state.seconds, 3),
+                  **record}
+        state.history.append(record)
+        if is_main:
+            if run is not None:
+                run.write_metrics_log(state.history)
+            write(_format_record(record, epochs))
+            if on_epoch_end is not None:
+                on_epoch_end(state.history)
+        checkpoint()
+        last_checkpoint = time.perf_counter()
+    return state
+
+
+def _accumulate(running: dict[str, float], values: dict[str, float]) -> None:
+    for name, value in values.items():
+        running[name] = running.get(name, 0.0) + float(value)
+    running["batches"] = running.get("batches", 0.0) + 1
+
+
+def _finish_epoch(
+    state: TrainingState, distributed: Distributed | None, device: torch.device
+) -> dict[str, float]:
+    """The epoch's averages (over every process's batches), and a clean slate for the next."""
+    running, state.running, state.batch = state.running, {}, 0
+    names = sorted(running)
+    if distributed is not None:
+        totals = torch.tensor([running.get(n, 0.0) for n in names], dtype=torch.float64,
+                              device=device)
+        running = dict(zip(names, distributed.all_reduce_sum(totals).tolist()))
+    count = running.pop("batches", 0.0)
+    return {
+        f"train_{name}" if name != "loss" else "train_loss": (value / count if count else math.nan)
+        for name, value in running.items()
+    }
+
+
+def _format_record(record: dict[str, Any], epochs: int) -> str:
+    parts = [f"epoch {record['epoch']}/{epochs}"]
+    for name, value in record.items():
+        if name in ("epoch", "step", "seconds", "lr"):
+            continue
+        parts.append(f"{name.replace('_', ' ')} {value:.4f}" if isinstance(value, float)
+                     else f"{name} {value}")
+    parts.append(f"({record['seconds']:.1f} s)")
+    return "  ".join(parts)
+
+
+def _length(iterable: Iterable[Any]) -> int | None:
+    try:
+        return len(iterable)  # type: ignore[arg-type]
+    except TypeError:
+        return None
+
+
+class _NoBar:
+    def update(self, count: int) -> None:
+        pass
+
+    def set_postfix(self, **values: Any) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _progress_bar(total: int | None, state: TrainingState, epochs: int, show: bool):
+    if not show:
+        return _NoBar()
+    from tqdm.auto import tqdm
+
+    # disable=None: a bar on a terminal, nothing when output goes to a file or a pipe.
+    return tqdm(
+        total=total, initial=state.batch, desc=f"epoch {state.epoch + 1}/{epochs}",
+        unit="batch", leave=False, disable=None, file=sys.stderr, dynamic_ncols=True,
+    )
+
+
+def _progress_write(line: str) -> None:
+    from tqdm.auto import tqdm
+
+    tqdm.write(line, file=sys.stdout)

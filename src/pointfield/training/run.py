@@ -1,0 +1,90 @@
+"""The run directory: everything one training run writes, in one folder.
+
+::
+
+    RUN/
+      config.json          what was trained on what, with which settings (written first)
+      metrics.jsonl        one JSON object per finished epoch
+      metrics.json         the final scores
+      checkpoints/last.pt  the latest checkpoint (atomic; --resume continues from it)
+      *.png                pictures the task draws: training curves, confusion matrix, ...
+
+Every file is replaced atomically, so a run killed at any moment leaves each file either as it
+was or as it was meant to be, never half-written.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from pointfield.atomic import atomic_path
+from pointfield.errors import PointfieldError
+
+
+class RunDirectory:
+    """Paths and writers of one run's folder."""
+
+    def __init__(self, path: str | os.PathLike[str]):
+        self.path = Path(path)
+        self.config = self.path / "config.json"
+        self.metrics_log = self.path / "metrics.jsonl"
+        self.final_metrics = self.path / "metrics.json"
+        self.checkpoint = self.path / "checkpoints" / "last.pt"
+
+    def create(self, resume: bool) -> None:
+        """Make the folder; refuse to start a new run over an old one unless resuming it.
+
+        Resuming also removes the temporary files a killed run may have left mid-write (the
+        files they were to replace are intact: writes are atomic).
+        """
+        if not resume and (self.config.exists() or self.checkpoint.exists()):
+            raise PointfieldError(
+                f"{self.path} already holds a run: pass --resume to continue it, or choose "
+                f"another --out"
+            )
+        if self.path.exists() and not self.path.is_dir():
+            raise PointfieldError(f"{self.path} exists and is not a folder")
+        self.checkpoint.parent.mkdir(parents=True, exist_ok=True)
+        if resume:
+            for leftover in self.path.rglob(".*.tmp*"):
+                leftover.unlink(missing_ok=True)
+
+    def exists(self) -> bool:
+        return self.config.is_file()
+
+    def read_config(self) -> dict[str, Any]:
+        if not self.config.is_file():
+            raise PointfieldError(f"{self.path}: not a run folder (no config.json)")
+        return read_json(self.config)
+
+    def write_config(self, config: dict[str, Any]) -> None:
+        write_json(self.config, config)
+
+    def write_metrics_log(self, records: list[dict[str, Any]]) -> None:
+        """Rewrite ``metrics.jsonl`` whole: one line per record (cheap, and never torn)."""
+        lines = "".join(json.dumps(record) + "\n" for record in records)
+        with atomic_path(self.metrics_log) as tmp:
+            tmp.write_text(lines, encoding="utf-8")
+
+    def read_metrics_log(self) -> list[dict[str, Any]]:
+        if not self.metrics_log.is_file():
+            return []
+        return [json.loads(line) for line in self.metrics_log.read_text().splitlines() if line]
+
+    def write_final_metrics(self, metrics: dict[str, Any]) -> None:
+        write_json(self.final_metrics, metrics)
+
+
+def write_json(path: Path, data: Any) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+
+
+def read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise PointfieldError(f"{path}: cannot read it as JSON ({error})") from None

@@ -1,0 +1,157 @@
+"""The training loop: records, checkpoints, resuming exactly, NaN losses, time limits."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from torch import nn
+
+from pointfield.errors import PointfieldError
+from pointfield.training import RunDirectory, fit, load_checkpoint, save_checkpoint
+
+IDENTITY = {"task": "toy", "model": "linear"}
+
+
+class Interrupted(Exception):
+    """Stands in for the process being killed."""
+
+
+def toy_problem(seed: int = 0):
+    """A linear classifier on fixed random data; steps add torch noise to test RNG restoring."""
+    torch.manual_seed(seed)
+    model = nn.Sequential(nn.Linear(4, 8), nn.Dropout(0.2), nn.Linear(8, 3))
+    optimizer = torch.optim.SGD(model.parameters(), lr=0.1)
+    generator = torch.Generator().manual_seed(1)
+    data = [(torch.randn(8, 4, generator=generator), torch.randint(0, 3, (8,), generator=generator))
+            for _ in range(5)]
+
+    def batches(epoch: int):
+        order = torch.randperm(len(data), generator=torch.Generator().manual_seed(epoch))
+        return [data[i] for i in order]
+
+    def step(batch):
+        x, y = batch
+        logits = model(x + 0.01 * torch.randn_like(x))
+        loss = nn.functional.cross_entropy(logits, y)
+        return loss, {"accuracy": float((logits.argmax(-1) == y).float().mean())}
+
+    return model, optimizer, batches, step
+
+
+def weights(model: nn.Module) -> list[torch.Tensor]:
+    return [p.detach().clone() for p in model.parameters()]
+
+
+def test_fit_logs_one_record_per_epoch_and_checkpoints(tmp_path):
+    model, optimizer, batches, step = toy_problem()
+    run = RunDirectory(tmp_path)
+    run.create(resume=False)
+    state = fit(model, optimizer, step, batches, 3, run=run, identity=IDENTITY,
+                evaluate=lambda epoch: {"test_score": float(epoch)}, progress=False,
+                log=lambda line: None)
+    records = [json.loads(line) for line in run.metrics_log.read_text().splitlines()]
+    assert [r["epoch"] for r in records] == [1, 2, 3] and state.step == 15
+    assert {"train_loss", "train_accuracy", "test_score", "lr", "seconds"} <= set(records[0])
+    payload = load_checkpoint(run.checkpoint, IDENTITY)
+    assert payload["state"]["epoch"] == 3 and len(payload["state"]["history"]) == 3
+
+
+def test_resuming_after_an_epoch_gives_the_same_model_as_never_stopping(tmp_path):
+    model, optimizer, batches, step = toy_problem()
+    fit(model, optimizer, step, batches, 4, progress=False, log=lambda line: None)
+    expected = weights(model)
+
+    run = RunDirectory(tmp_path)
+    run.create(resume=False)
+    model, optimizer, batches, step = toy_problem()
+    fit(model, optimizer, step, batches, 2, run=run, progress=False, log=lambda line: None)
+    model, optimizer, batches, step = toy_problem(seed=99)  # a fresh process
+    fit(model, optimizer, step, batches, 4, run=run, resume=True, progress=False,
+        log=lambda line: None)
+    for a, b in zip(weights(model), expected):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    assert [r["epoch"] for r in run.read_metrics_log()] == [1, 2, 3, 4]
+
+
+def test_a_run_killed_mid_epoch_resumes_from_the_last_step_checkpoint(tmp_path):
+    model, optimizer, batches, step = toy_problem()
+    fit(model, optimizer, step, batches, 2, progress=False, log=lambda line: None)
+    expected = weights(model)
+
+    run = RunDirectory(tmp_path)
+    run.create(resume=False)
+    model, optimizer, batches, step = toy_problem()
+    calls = []
+
+    def dying_step(batch):
+        calls.append(1)
+        if len(calls) == 8:  # the third batch of the second epoch
+            raise Interrupted
+        return step(batch)
+
+    with pytest.raises(Interrupted):
+        fit(model, optimizer, dying_step, batches, 2, run=run, checkpoint_seconds=0,
+            progress=False, log=lambda line: None)
+    assert load_checkpoint(run.checkpoint)["state"]["batch"] == 2
+    model, optimizer, batches, step = toy_problem(seed=5)
+    fit(model, optimizer, step, batches, 2, run=run, resume=True, progress=False,
+        log=lambda line: None)
+    for a, b in zip(weights(model), expected):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    assert [r["epoch"] for r in run.read_metrics_log()] == [1, 2]
+
+
+def test_a_nan_loss_stops_training_with_a_clear_error(tmp_path):
+    model, optimizer, batches, step = toy_problem()
+    before = weights(model)
+
+    def nan_step(batch):
+        loss, stats = step(batch)
+        return loss * float("nan"), stats
+
+    with pytest.raises(PointfieldError, match="epoch 1, step 1"):
+        fit(model, optimizer, nan_step, batches, 1, progress=False, log=lambda line: None)
+    for a, b in zip(weights(model), before):
+        torch.testing.assert_close(a, b)
+
+
+def test_max_seconds_stops_after_the_current_step_with_a_checkpoint(tmp_path):
+    model, optimizer, batches, step = toy_problem()
+    run = RunDirectory(tmp_path)
+    run.create(resume=False)
+    state = fit(model, optimizer, step, batches, 100, run=run, max_seconds=0.0,
+                progress=False, log=lambda line: None)
+    assert state.step == 1 and load_checkpoint(run.checkpoint)["state"]["step"] == 1
+
+
+def test_a_checkpoint_of_another_model_is_refused_by_name(tmp_path):
+    model, optimizer, _, _ = toy_problem()
+    path = tmp_path / "last.pt"
+    save_checkpoint(path, identity={"task": "toy", "model": "pointnet2"}, model=model)
+    with pytest.raises(PointfieldError, match="model 'pointnet2', expected 'linear'"):
+        load_checkpoint(path, IDENTITY)
+
+
+def test_files_that_are_not_checkpoints_are_refused(tmp_path):
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(b"\x00" * 100)
+    with pytest.raises(PointfieldError, match="not a readable pointfield checkpoint"):
+        load_checkpoint(garbage)
+    other = tmp_path / "other.pt"
+    torch.save({"weights": torch.zeros(2)}, other)
+    with pytest.raises(PointfieldError, match="not a pointfield checkpoint"):
+        load_checkpoint(other)
+    future = tmp_path / "future.pt"
+    torch.save({"format": "pointfield-checkpoint", "version": 99}, future)
+    with pytest.raises(PointfieldError, match="version 99"):
+        load_checkpoint(future)
+
+
+def test_a_new_run_refuses_to_overwrite_an_old_one(tmp_path):
+    run = RunDirectory(tmp_path)
+    run.create(resume=False)
+    run.write_config({"task": "toy"})
+    with pytest.raises(PointfieldError, match="--resume"):
+        RunDirectory(tmp_path).create(resume=False)
