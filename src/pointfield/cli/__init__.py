@@ -12,11 +12,11 @@ import sys
 from collections.abc import Sequence
 
 import pointfield
-from pointfield.cli import classify, cloud, demo, nerf, scene, segment
+from pointfield.cli import classify, cloud, demo, nerf, scene, segment, splat
 from pointfield.errors import PointfieldError
 
 # Each module exposes add_parser(subparsers); order is the order `pointfield --help` lists them.
-VERB_GROUPS = (cloud, classify, segment, scene, nerf, demo)
+VERB_GROUPS = (cloud, classify, segment, scene, nerf, splat, demo)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,104 @@
+"""``pointfield splat train|render|export``: 3D Gaussian splatting on any device.
+
+Each subcommand calls the Python function of the same name and arguments in
+:mod:`pointfield.splats.train`. torch is imported only when a subcommand runs, so other
+commands start fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
+DEFAULT_MAX_SPLATS = 200_000  # pointfield.splats.train.DEFAULT_MAX_SPLATS, without importing torch
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``splat`` and its subcommands to the ``pointfield`` parser."""
+    group = subparsers.add_parser(
+        "splat",
+        help="train 3D Gaussian splats on posed images, render them, export the standard .ply",
+        description="Reconstruct a scene from posed photos as 3D Gaussian splats, in plain PyTorch "
+        "(CPU, CUDA or MPS). SCENE is any posed-image dataset pointfield reads; without SCENE, the "
+        "built-in synthetic cube. Splat files use the standard layout every splat viewer reads.",
+    )
+    verbs = group.add_subparsers(dest="verb", metavar="SUBCOMMAND", required=True)
+
+    train = verbs.add_parser("train", help="train splats into a run folder")
+    train.add_argument("scene", nargs="?", type=Path, metavar="SCENE",
+                       help="posed-image dataset (default: the built-in synthetic cube)")
+    train.add_argument("--out", type=Path, default=Path("runs/splat"), help="run folder (default runs/splat)")
+    train.add_argument("--steps", type=int, help="optimizer steps, one view each (default 3000)")
+    train.add_argument("--max-time", type=float, metavar="SECONDS", help="stop after this much training time")
+    train.add_argument("--downscale", type=int, default=1, help="divide image sizes by this integer (default 1)")
+    train.add_argument("--holdout-every", type=int, metavar="N",
+                       help="hold every N-th training view out for evaluation (for scenes without test views)")
+    train.add_argument("--background", help="white, black or 'r,g,b' to composite alpha onto (default: the scene's)")
+    train.add_argument("--max-splats", type=int, default=DEFAULT_MAX_SPLATS,
+                       help=f"densification never grows beyond this many splats (default {DEFAULT_MAX_SPLATS:,})")
+    train.add_argument("--initial-splats", type=int, default=20_000,
+                       help="random splats to start from when the scene has no sparse points (default 20,000)")
+    train.add_argument("--eval-every", type=int, metavar="STEPS", help="score held-out views every STEPS steps (default 250)")
+    train.add_argument("--device", help=DEVICE_HELP)
+    train.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    train.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    train.set_defaults(run=run_train)
+
+    render = verbs.add_parser(
+        "render", help="render a run or a splat .ply along a camera path",
+        description="Render colour, depth and alpha along a camera path: orbit (a circle around "
+        "the scene), spiral (the orbit swinging up and down) or dataset (the scene's own "
+        "cameras). SOURCE is a run folder from splat train or any standard splat .ply (which "
+        "needs --scene for its cameras). OUT ending in .gif or .mp4 gets a video of colour | "
+        "depth | alpha panels; anything else is a folder of PNGs.",
+    )
+    render.add_argument("source", type=Path, metavar="RUN|SPLATS.ply", help="a run folder or a splat .ply")
+    render.add_argument("--scene", type=Path, help="scene whose cameras to use (default: the run's)")
+    render.add_argument("--downscale", type=int, default=1, help="with --scene: divide image sizes by this (default 1)")
+    render.add_argument("--path", choices=("orbit", "spiral", "dataset"), default="orbit", help="camera path (default orbit)")
+    render.add_argument("--frames", type=int, help="number of frames (default 60; dataset: every camera)")
+    render.add_argument("--out", type=Path, default=Path("render.gif"), help="x.gif, x.mp4 or a folder (default render.gif)")
+    render.add_argument("--device", help=DEVICE_HELP)
+    render.set_defaults(run=run_render)
+
+    export = verbs.add_parser("export", help="write a run's splats as a standard splat .ply")
+    export.add_argument("run_dir", type=Path, metavar="RUN", help="a run folder from splat train")
+    export.add_argument("--out", type=Path, required=True, help="the .ply to write")
+    export.set_defaults(run=run_export)
+
+
+def run_train(args: argparse.Namespace) -> int:
+    from pointfield.splats.train import train
+
+    background = args.background
+    if background is not None and "," in background:
+        background = [float(value) for value in background.split(",")]
+    metrics = train(
+        args.scene, out=args.out, steps=args.steps, max_time=args.max_time, downscale=args.downscale,
+        holdout_every=args.holdout_every, background=background, device=args.device, seed=args.seed,
+        resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,
+        eval_every=args.eval_every, progress=args.progress,
+    )
+    print(f"splat run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
+          f"{metrics['splats']:,} splats ({metrics['steps']} steps, {metrics['seconds']:.0f} s); "
+          f"see {args.out / 'metrics.json'}")
+    return 0
+
+
+def run_render(args: argparse.Namespace) -> int:
+    from pointfield.splats.train import render
+
+    result = render(args.source, scene=args.scene, downscale=args.downscale, path=args.path,
+                    frames=args.frames, out=args.out, device=args.device)
+    print(f"wrote {result['frames']} frames ({result['path']}, {result['splats']:,} splats) to {result['out']}")
+    return 0
+
+
+def run_export(args: argparse.Namespace) -> int:
+    from pointfield.splats.train import export
+
+    result = export(args.run_dir, args.out)
+    print(f"wrote {result['splats']:,} splats (SH degree {result['sh_degree']}) to {result['out']}")
+    return 0

@@ -1,0 +1,147 @@
+"""Densification, the loss, and training / rendering / exporting runs (tiny scenes, few steps)."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from pointfield.cli import main
+from pointfield.errors import PointfieldError
+from pointfield.image_metrics import ssim as ssim_metric
+from pointfield.scenes import make_scene
+from pointfield.splats.densification import DefaultStrategy
+from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
+from pointfield.splats.loss import splat_loss, ssim
+from pointfield.splats.ply import read_splats
+from pointfield.splats.rasterizer import rasterization
+from pointfield.splats.train import train
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    return make_scene("cube", tmp_path_factory.mktemp("scenes") / "cube", views=6, size=24)
+
+
+def test_differentiable_ssim_equals_the_metric():
+    generator = torch.Generator().manual_seed(0)
+    a = torch.rand(20, 17, 3, generator=generator, dtype=torch.float64)
+    b = (a + 0.1 * torch.rand(20, 17, 3, generator=generator, dtype=torch.float64)).clamp(0, 1)
+    assert float(ssim(a, b)) == pytest.approx(ssim_metric(a, b), abs=1e-12)
+    a.requires_grad_()
+    splat_loss(a, b).backward()
+    assert torch.isfinite(a.grad).all() and a.grad.abs().sum() > 0
+
+
+def test_loss_is_zero_for_equal_images():
+    image = torch.rand(16, 16, 3)
+    assert float(splat_loss(image, image)) == pytest.approx(0, abs=1e-6)
+
+
+def _training_steps(gaussians, optimizer, strategy, steps):
+    K = torch.tensor([[[40.0, 0, 24], [0, 40.0, 24], [0, 0, 1]]])
+    target = torch.rand(48, 48, 3, generator=torch.Generator().manual_seed(1))
+    meta = None
+    for step in range(steps):
+        if meta is not None:
+            strategy.after_backward(gaussians, optimizer, meta, step, 48, 48)
+        colors, _, _, meta = rasterization(
+            gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities,
+            gaussians.sh_coefficients, torch.eye(4)[None], K, 48, 48, sh_degree=0,
+        )
+        meta["means2d"].retain_grad()
+        optimizer.zero_grad()
+        splat_loss(colors[0], target).backward()
+        optimizer.step()
+
+
+def _model_and_optimizer(count=100):
+    gaussians = Gaussians.random_in_box(count, [-1, -1, 3], [1, 1, 5])
+    optimizer = torch.optim.Adam([{"params": [getattr(gaussians, n)], "lr": 1e-2} for n in PARAMETER_NAMES])
+    return gaussians, optimizer
+
+
+def test_densification_grows_and_keeps_the_optimizer_in_step():
+    gaussians, optimizer = _model_and_optimizer()
+    strategy = DefaultStrategy(refine_start=1, refine_every=2, grad_threshold=1e-7, reset_every=1000)
+    _training_steps(gaussians, optimizer, strategy, 4)
+    assert len(gaussians) > 100
+    for name in PARAMETER_NAMES:
+        parameter = getattr(gaussians, name)
+        assert optimizer.state[parameter]["exp_avg"].shape == parameter.shape
+        assert any(parameter is p for group in optimizer.param_groups for p in group["params"])
+
+
+def test_the_cap_stops_densification_with_a_message():
+    messages = []
+    gaussians, optimizer = _model_and_optimizer()
+    strategy = DefaultStrategy(refine_start=1, refine_every=2, grad_threshold=1e-7, max_splats=130,
+                               reset_every=1000, log=messages.append)
+    _training_steps(gaussians, optimizer, strategy, 6)
+    assert len(gaussians) == 130
+    assert len(messages) == 1 and "splat cap of 130 reached" in messages[0] and "--max-splats" in messages[0]
+
+
+def test_pruning_removes_transparent_splats_and_reset_lowers_opacity():
+    gaussians, optimizer = _model_and_optimizer(10)
+    with torch.no_grad():
+        gaussians.opacity_logits[:3] = -10.0
+    strategy = DefaultStrategy(refine_start=0, refine_every=1, grad_threshold=1e9, reset_every=2)
+    _training_steps(gaussians, optimizer, strategy, 3)
+    assert len(gaussians) == 7
+    assert float(gaussians.opacities.detach().max()) <= 0.011
+
+
+def test_sh_degree_rises_on_schedule():
+    strategy = DefaultStrategy(sh_degree_interval=100)
+    assert [strategy.sh_degree_at(s, 3) for s in (0, 99, 100, 250, 10_000)] == [0, 0, 1, 2, 3]
+
+
+def test_train_writes_a_run_and_resumes_it(tiny_scene, tmp_path):
+    out = tmp_path / "run"
+    metrics = train(tiny_scene, out=out, steps=6, eval_every=3, initial_splats=300, progress=False)
+    assert metrics["steps"] == 6 and np.isfinite(metrics["psnr"])
+    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records] == [3, 6]
+    assert {"config.json", "metrics.json", "checkpoints", "heldout"} <= {p.name for p in out.iterdir()}
+    resumed = train(tiny_scene, out=out, steps=9, resume=True, progress=False)
+    assert resumed["steps"] == 9
+    with pytest.raises(PointfieldError, match="already holds a run"):
+        train(tiny_scene, out=out, steps=3, progress=False)
+
+
+def test_commands_train_export_and_render(tiny_scene, tmp_path, capsys):
+    run, ply, frames = tmp_path / "run", tmp_path / "s.ply", tmp_path / "frames"
+    assert main(["splat", "train", str(tiny_scene), "--out", str(run), "--steps", "4",
+                 "--initial-splats", "200", "--max-splats", "500", "--no-progress"]) == 0
+    assert main(["splat", "export", str(run), "--out", str(ply)]) == 0
+    assert len(read_splats(ply)) == json.loads((run / "metrics.json").read_text())["splats"]
+    assert main(["splat", "render", str(run), "--path", "dataset", "--frames", "2", "--out", str(frames)]) == 0
+    assert (frames / "color_001.png").is_file()
+    assert main(["splat", "render", str(ply), "--scene", str(tiny_scene), "--path", "orbit",
+                 "--frames", "2", "--out", str(tmp_path / "orbit.gif")]) == 0
+    assert (tmp_path / "orbit.gif").stat().st_size > 0
+    assert main(["splat", "render", str(ply), "--out", str(tmp_path / "x.gif")]) == 1
+    assert "pass --scene" in capsys.readouterr().err
+
+
+def test_a_colmap_scene_initialises_from_its_sparse_points(shared_data):
+    from pointfield.scenes import read_scene
+    from pointfield.splats.train import initial_gaussians
+
+    scene = read_scene(shared_data / "colmap/tiny_phone_scene", format="colmap")
+    gaussians = initial_gaussians(scene, 1000, seed=0)
+    assert len(gaussians) == len(scene.points.points) == 256
+    np.testing.assert_allclose(gaussians.means.detach().numpy(), scene.points.points, rtol=1e-6)
+
+
+def test_a_scene_without_points_or_box_starts_at_random_around_its_cameras(tmp_path):
+    from pointfield.scenes import synthetic_scene
+    from pointfield.splats.train import initial_gaussians
+
+    scene = synthetic_scene("cube", views=4, size=16)
+    scene.aabb = None
+    gaussians = initial_gaussians(scene, 50, seed=0)
+    assert len(gaussians) == 50
+    distances = np.linalg.norm(scene.cameras.centers.numpy(), axis=1).mean()
+    assert gaussians.means.detach().abs().max() < distances / 2
