@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench bench-formats bench-fuzz clean
+.PHONY: demo test bench bench-formats bench-fuzz bench-pointnet bench-nerf bench-splat clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,13 +27,22 @@ $(BIN)/.open3d: $(BIN)/.installed
 	$(BIN)/python -c "import open3d"
 	touch $@
 
-bench: bench-formats bench-fuzz
+bench: bench-formats bench-fuzz bench-pointnet bench-nerf bench-splat
 
 bench-formats: $(BIN)/.open3d
 	$(BIN)/python benchmarks/bench_formats.py
 
 bench-fuzz: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_fuzz.py
+
+bench-pointnet: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_pointnet.py
+
+bench-nerf: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_nerf.py
+
+bench-splat: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_splat.py
 
 clean:
 	rm -rf $(VENV) demo-output bench-output

@@ -265,7 +265,7 @@ def main() -> int:
         for name, factory in (("lesson reference (Conv1d)", LessonPointNet),
                               ("pointfield PointNet, same sizes", lesson_sized_pointnet)):
             torch.manual_seed(0)
-            print(f"  {name}")
+            print(f"  training {name}")
             score, seconds = train_same_recipe(factory(CLASSES), epochs, shapes)
             comparison[name] = {"accuracy": score, "seconds": seconds}
             print(f"  {name:<36} accuracy {score:.4f}  ({seconds:.0f} s)")
