@@ -1,5 +1,10 @@
-"""The tile rasterizer agrees with the dense reference in images and gradients, and gradchecks."""
+"""The tile rasterizer agrees with the dense reference in images and gradients, and gradchecks.
 
+Both of its compositing paths are held to the reference: the differentiable one (inputs that
+require gradients) and the in-place one used whenever no gradient can flow.
+"""
+
+import contextlib
 import math
 
 import numpy as np
@@ -8,8 +13,16 @@ import torch
 
 from pointfield.splats.gaussians import Gaussians
 from pointfield.splats.ply import read_splats
-from pointfield.splats.rasterizer import TILE_SIZE, rasterization
+from pointfield.splats.rasterizer import (
+    MIN_ALPHA,
+    SIGMA_EXTENT,
+    project_gaussians,
+    rasterization,
+    tile_intersections,
+)
 from pointfield.splats.reference import rasterization_reference
+
+PATHS = ["differentiable", "no_grad"]
 
 
 def tiny_scene(count: int, seed: int, spread: float = 0.6):
@@ -37,12 +50,21 @@ def cameras(count: int = 2):
     return viewmats, Ks
 
 
+def render(path: str, splats, *args, **kwargs):
+    """``rasterization`` through one compositing path: inputs requiring gradients, or none."""
+    if path == "differentiable":
+        splats = [tensor.detach().requires_grad_() for tensor in splats]
+    with torch.no_grad() if path == "no_grad" else contextlib.nullcontext():
+        return rasterization(*splats, *args, **kwargs)
+
+
+@pytest.mark.parametrize("path", PATHS)
 @pytest.mark.parametrize("seed", [0, 1])
-def test_images_match_the_reference(seed):
+def test_images_match_the_reference(seed, path):
     splats = tiny_scene(30, seed)
     viewmats, Ks = cameras()
     background = torch.tensor([0.2, 0.3, 0.4], dtype=torch.float64)
-    fast = rasterization(*splats, viewmats, Ks, 40, 35, backgrounds=background)
+    fast = render(path, splats, viewmats, Ks, 40, 35, backgrounds=background)
     slow = rasterization_reference(*splats, viewmats, Ks, 40, 35, backgrounds=background)
     for name, a, b in zip(("colors", "depths", "alphas"), fast[:3], slow):
         torch.testing.assert_close(a, b, atol=1e-12, rtol=0, msg=name)
@@ -65,11 +87,12 @@ def test_gradients_match_the_reference():
         torch.testing.assert_close(a, b, atol=1e-9, rtol=1e-9, msg=name)
 
 
-def test_spherical_harmonic_colours_match_the_reference():
+@pytest.mark.parametrize("path", PATHS)
+def test_spherical_harmonic_colours_match_the_reference(path):
     means, quats, scales, opacities, _ = tiny_scene(12, 5)
     coefficients = torch.randn(12, 16, 3, dtype=torch.float64) * 0.3
     viewmats, Ks = cameras()
-    fast = rasterization(means, quats, scales, opacities, coefficients, viewmats, Ks, 40, 35, sh_degree=3)
+    fast = render(path, [means, quats, scales, opacities, coefficients], viewmats, Ks, 40, 35, sh_degree=3)
     slow = rasterization_reference(means, quats, scales, opacities, coefficients, viewmats, Ks, 40, 35, sh_degree=3)
     torch.testing.assert_close(fast[0], slow[0], atol=1e-12, rtol=0)
 
@@ -87,7 +110,8 @@ def test_gradcheck_on_a_tiny_scene():
     assert torch.autograd.gradcheck(render, splats, eps=1e-6, atol=1e-5, fast_mode=True)
 
 
-def test_saturated_pixels_stop_and_alpha_never_exceeds_one():
+@pytest.mark.parametrize("path", PATHS)
+def test_saturated_pixels_stop_and_alpha_never_exceeds_one(path):
     # Twenty opaque splats stacked on the optical axis: the pixel stops before T < 1e-4.
     count = 20
     dt = torch.float64
@@ -97,19 +121,20 @@ def test_saturated_pixels_stop_and_alpha_never_exceeds_one():
               torch.full((count, 3), 0.5, dtype=dt), torch.full((count,), 0.999, dtype=dt),
               torch.eye(count, dtype=dt)]
     viewmats, Ks = cameras(1)
-    colors, _, alphas, _ = rasterization(*splats, viewmats, Ks, 40, 35, splats_per_slice=1)
-    centre = colors[0, 17, 20]
+    colors, _, alphas, _ = render(path, splats, viewmats, Ks, 40, 35, splats_per_slice=1)
+    centre = colors[0, 17, 20].detach()
     # alpha clamps at 0.99: T after k splats is 0.01^k, so only the first two splats count.
     torch.testing.assert_close(centre[:3], torch.tensor([0.99, 0.0099, 0], dtype=dt))
     assert centre[2:].abs().max() == 0
     assert alphas.max() <= 1
 
 
-def test_splats_behind_the_camera_are_not_drawn():
+@pytest.mark.parametrize("path", PATHS)
+def test_splats_behind_the_camera_are_not_drawn(path):
     splats = tiny_scene(5, 0)
     splats[0] = splats[0] * torch.tensor([1, 1, -1.0], dtype=torch.float64)
     viewmats, Ks = cameras(1)
-    colors, depths, alphas, meta = rasterization(*splats, viewmats, Ks, 40, 35)
+    colors, depths, alphas, meta = render(path, splats, viewmats, Ks, 40, 35)
     assert alphas.max() == 0
     assert (meta["radii"] == 0).all()
 
@@ -119,8 +144,11 @@ def test_the_result_does_not_depend_on_the_batching_of_tiles_or_splats():
     viewmats, Ks = cameras(1)
     whole = rasterization(*splats, viewmats, Ks, 40, 35)
     piecewise = rasterization(*splats, viewmats, Ks, 40, 35, max_block_elements=1, splats_per_slice=3)
-    for a, b in zip(whole[:3], piecewise[:3]):
+    with torch.no_grad():
+        piecewise_no_grad = rasterization(*splats, viewmats, Ks, 40, 35, max_block_elements=1, splats_per_slice=3)
+    for a, b, c in zip(whole[:3], piecewise[:3], piecewise_no_grad[:3]):
         torch.testing.assert_close(a, b, atol=1e-12, rtol=0)
+        torch.testing.assert_close(a.detach(), c, atol=1e-12, rtol=0)
     weights = torch.randn_like(whole[0])
     for a, b in zip(torch.autograd.grad((whole[0] * weights).sum() + whole[1].sum(), splats),
                     torch.autograd.grad((piecewise[0] * weights).sum() + piecewise[1].sum(), splats)):
@@ -139,7 +167,7 @@ def test_screen_space_gradients_reach_means2d():
 
 def test_the_real_3dgs_file_renders(shared_data):
     gaussians = read_splats(shared_data / "gaussians/3dgs_point_cloud_iter7000.ply")
-    width, height = 2 * TILE_SIZE + 8, 2 * TILE_SIZE
+    width, height = 40, 32
     K = torch.tensor([[[30.0, 0, width / 2], [0, 30.0, height / 2], [0, 0, 1]]])
     with torch.no_grad():
         colors, _, alphas, meta = rasterization(
@@ -149,3 +177,109 @@ def test_the_real_3dgs_file_renders(shared_data):
     assert (meta["radii"] > 0).sum() > 1000
     assert alphas.mean() > 0.5, "the camera at the origin looks into the captured room"
     assert torch.isfinite(colors).all() and colors.std() > 0.01
+
+
+@pytest.mark.parametrize("tile_size", [1, 3, 4, 16])
+@pytest.mark.parametrize("path", PATHS)
+def test_the_image_does_not_depend_on_the_tile_size(tile_size, path):
+    splats = tiny_scene(30, 11)
+    viewmats, Ks = cameras()
+    background = torch.tensor([0.2, 0.3, 0.4], dtype=torch.float64)
+    tiled = render(path, splats, viewmats, Ks, 40, 35, backgrounds=background, tile_size=tile_size)
+    slow = rasterization_reference(*splats, viewmats, Ks, 40, 35, backgrounds=background)
+    for name, a, b in zip(("colors", "depths", "alphas"), tiled[:3], slow):
+        torch.testing.assert_close(a.detach(), b, atol=1e-12, rtol=0, msg=name)
+
+
+def test_rendering_without_gradients_matches_the_differentiable_path():
+    # Many overlapping splats (pixels saturate and stop), SH colours, a background and more
+    # splats per tile than one slice holds.
+    means, quats, scales, opacities, _ = tiny_scene(300, 12, spread=0.5)
+    opacities = opacities.clamp(0.3, 0.99)
+    coefficients = torch.randn(300, 16, 3, dtype=torch.float64) * 0.3
+    splats = [means, quats, scales, opacities, coefficients]
+    viewmats, Ks = cameras()
+    background = torch.tensor([1.0, 1.0, 1.0], dtype=torch.float64)
+    kwargs = dict(sh_degree=3, backgrounds=background, splats_per_slice=16)
+    with_grad = render("differentiable", splats, viewmats, Ks, 40, 35, **kwargs)
+    without = render("no_grad", splats, viewmats, Ks, 40, 35, **kwargs)
+    assert (with_grad[2] > 0.999).float().mean() > 0.05, "some pixels should be saturated"
+    for name, a, b in zip(("colors", "depths", "alphas"), with_grad[:3], without[:3]):
+        torch.testing.assert_close(a.detach(), b, atol=1e-12, rtol=0, msg=name)
+    for key in ("means2d", "radii", "depths"):
+        torch.testing.assert_close(with_grad[3][key].detach(), without[3][key])
+
+
+def test_transparent_splats_are_culled_and_change_nothing():
+    splats = tiny_scene(20, 4)
+    splats[3][::2] = 0.5 * MIN_ALPHA  # too faint for any pixel
+    viewmats, Ks = cameras(1)
+    projection = project_gaussians(*splats[:3], viewmats[0], Ks[0], 40, 35)
+    splat_ids, _ = tile_intersections(
+        projection.means2d, projection.conics, splats[3], projection.depths, projection.visible, 40, 35,
+    )
+    assert len(splat_ids) > 0 and (splat_ids % 2 == 1).all()
+    for path in PATHS:
+        fast = render(path, splats, viewmats, Ks, 40, 35)
+        slow = rasterization_reference(*splats, viewmats, Ks, 40, 35)
+        for a, b in zip(fast[:3], slow):
+            torch.testing.assert_close(a.detach(), b, atol=1e-12, rtol=0)
+
+
+def needles_and_blobs(seed: int):
+    """Long thin rotated splats, round ones and faint ones, some over the image border, float64."""
+    generator = torch.Generator().manual_seed(seed)
+    dt = torch.float64
+    count = 60
+    means = torch.rand(count, 3, generator=generator, dtype=dt) * torch.tensor([3.0, 3.0, 2.0], dtype=dt) \
+        + torch.tensor([-1.5, -1.5, 3.0], dtype=dt)
+    quats = torch.randn(count, 4, generator=generator, dtype=dt)
+    scales = torch.rand(count, 3, generator=generator, dtype=dt) * 0.1 + 0.01
+    scales[::3, 0] = 1.0  # needles, up to ~40 pixels long and a pixel wide
+    opacities = torch.rand(count, generator=generator, dtype=dt)
+    opacities[::4] = torch.rand(count // 4, generator=generator, dtype=dt) * 0.02  # reach < 3 sigma
+    return means, quats, scales, opacities
+
+
+@pytest.mark.parametrize("tile_size", [1, 3, 4, 16])
+def test_tile_binning_finds_every_pixel_a_splat_reaches(tile_size):
+    means, quats, scales, opacities = needles_and_blobs(tile_size)
+    viewmats, Ks = cameras(1)
+    width, height = 41, 35  # neither a multiple of the tile size
+    projection = project_gaussians(means, quats, scales, viewmats[0], Ks[0], width, height)
+    splat_ids, tile_ids = tile_intersections(
+        projection.means2d, projection.conics, opacities, projection.depths, projection.visible,
+        width, height, tile_size,
+    )
+    # Every (pixel, splat) that step 5 keeps, found by testing every pixel.
+    v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64) + 0.5,
+                          torch.arange(width, dtype=torch.float64) + 0.5, indexing="ij")
+    a, b, c = projection.conics.unbind(-1)
+    dx = u.flatten()[:, None] - projection.means2d[:, 0]
+    dy = v.flatten()[:, None] - projection.means2d[:, 1]
+    sigma = 0.5 * a * dx * dx + b * dx * dy + 0.5 * c * dy * dy                     # (pixels, N)
+    kept = (sigma <= 0.5 * SIGMA_EXTENT**2) & (opacities * torch.exp(-sigma) >= MIN_ALPHA) & projection.visible
+    pixel, splat = torch.nonzero(kept, as_tuple=True)
+    tiles_x = math.ceil(width / tile_size)
+    needed = set(zip(splat.tolist(), ((pixel // width // tile_size) * tiles_x + pixel % width // tile_size).tolist()))
+    found = set(zip(splat_ids.tolist(), tile_ids.tolist()))
+    assert len(needed) > 100
+    assert needed <= found
+    # And the bound is close: few pairs reach no pixel at all.
+    assert len(found - needed) <= 0.2 * len(found)
+    # Sorted by tile, then front to back within each tile.
+    assert (tile_ids[1:] >= tile_ids[:-1]).all()
+    same_tile = tile_ids[1:] == tile_ids[:-1]
+    assert (projection.depths[splat_ids[1:]][same_tile] >= projection.depths[splat_ids[:-1]][same_tile]).all()
+
+
+def test_both_paths_render_the_real_3dgs_file_alike_in_float32(shared_data):
+    gaussians = read_splats(shared_data / "gaussians/3dgs_point_cloud_iter7000.ply")
+    K = torch.tensor([[[30.0, 0, 20.0], [0, 30.0, 16.0], [0, 0, 1]]])
+    splats = [gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities, gaussians.sh_coefficients]
+    with_grad = render("differentiable", splats, torch.eye(4)[None], K, 40, 32, sh_degree=3)
+    without = render("no_grad", splats, torch.eye(4)[None], K, 40, 32, sh_degree=3)
+    assert without[0].dtype == torch.float32
+    torch.testing.assert_close(without[0], with_grad[0].detach(), atol=1e-5, rtol=0)
+    torch.testing.assert_close(without[2], with_grad[2].detach(), atol=1e-5, rtol=0)
+    torch.testing.assert_close(without[1], with_grad[1].detach(), atol=1e-3, rtol=1e-5)  # depths ~ 300

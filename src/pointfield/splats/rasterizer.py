@@ -21,49 +21,75 @@ The algorithm, step by step:
 1. **Project** (EWA splatting, Zwicker et al. 2002): the camera-space covariance
    ``W Sigma W^T`` is mapped to the image by the Jacobian of the perspective projection at the
    mean, ``J = [[fx/z, 0, -fx x/z^2], [0, fy/z, -fy y/z^2]]``, giving
-   ``Sigma_2d = J W Sigma W^T J^T + 0.3 I``. The 0.3 px^2 dilation keeps every splat at least
-   about a pixel wide (no aliasing holes). As in 3DGS, ``x/z`` and ``y/z`` are clamped to 1.3x
-   the field of view inside ``J`` so splats far outside the view do not explode. Splats with
-   ``z <= near_plane`` are dropped.
-2. **Bound** each splat by a square of half-width ``r = ceil(3 sqrt(lambda_max(Sigma_2d)))``
-   (3 sigma) and keep those overlapping the image. A splat contributes only inside its 3-sigma
-   ellipse (``d^T Sigma_2d^-1 d <= 9``), so the image does not depend on the tiling.
-3. **Bin** splats into 16 x 16-pixel tiles: one (splat, tile) pair per tile the square touches.
+   ``Sigma_2d = J W Sigma W^T J^T + 0.3 I`` (computed as ``M M^T`` with ``M = J W R S``, since
+   ``Sigma = R S S^T R^T``). The 0.3 px^2 dilation keeps every splat at least about a pixel
+   wide (no aliasing holes). As in 3DGS, ``x/z`` and ``y/z`` are clamped to 1.3x the field of
+   view inside ``J`` so splats far outside the view do not explode. Splats with
+   ``z <= near_plane`` are dropped; ``meta["radii"]`` is the 3-sigma half-width
+   ``ceil(3 sqrt(lambda_max(Sigma_2d)))``, 0 for splats off screen.
+2. **Bound** what each splat can reach. With ``sigma = 0.5 d^T Sigma_2d^-1 d`` at offset ``d``
+   from the mean, a pixel takes a splat only inside its 3-sigma ellipse (``sigma <= 4.5``) and
+   where ``alpha >= 1/255``, i.e. ``sigma <= ln(255 o)``: together, inside the ellipse
+   ``sigma <= t = min(4.5, ln(255 o))`` (:func:`splat_extents`). Splats with ``o < 1/255``
+   reach no pixel and are culled.
+3. **Bin** splats into ``tile_size`` x ``tile_size`` tiles (4 x 4 by default): one
+   (splat, tile) pair per tile whose pixel centres the ellipse of step 2 meets, found exactly
+   row of tiles by row of tiles (:func:`tile_intersections`), so that few of the pixels
+   evaluated in step 5 are wasted.
 4. **Sort** the pairs by tile, and within a tile by camera-space depth z (front first).
 5. **Composite** each pixel front to back:
-   ``alpha_i = min(0.99, o_i exp(-0.5 d^T Sigma_2d^-1 d))``, skipped when ``alpha_i < 1/255``;
-   ``C = sum_i c_i alpha_i T_i`` with ``T_i = prod_{j<i} (1 - alpha_j)``; a pixel stops at the
-   first splat that would bring its transmittance below 1e-4 (that splat is not added).
+   ``alpha_i = min(0.99, o_i exp(-sigma_i))``, skipped when ``alpha_i < 1/255`` or outside
+   3 sigma; ``C = sum_i c_i alpha_i T_i`` with ``T_i = prod_{j<i} (1 - alpha_j)``; a pixel stops
+   at the first splat that would bring its transmittance below 1e-4 (that splat is not added).
    Depth is ``sum_i z_i alpha_i T_i`` and alpha ``1 - T_final = sum_i alpha_i T_i``.
 
-Step 5 is evaluated for whole tiles at once: the splats of a batch of tiles are gathered into
-a padded ``(tiles, L, 256)`` block and the front-to-back product is a ``cumprod`` along L,
-which autograd differentiates. Tiles are processed in batches of similar length so the
-padding, and the memory, stay bounded (``max_block_elements``), and L is walked in slices of
-``splats_per_slice`` so a tile whose pixels have all stopped is dropped early.
+Steps 2 to 4 only choose which (pixel, splat) pairs are evaluated; step 5 drops every pair
+that does not count, so the image does not depend on the tiling or the batching.
+
+Step 5 is evaluated for whole tiles at once: the splats of a batch of tiles, of similar lengths,
+are gathered into a padded block of ``tiles x L x pixels`` (at most ``max_block_elements``)
+and the front-to-back product is a ``cumprod`` along L; L is walked in slices of
+``splats_per_slice`` so that a tile whose pixels have all stopped is dropped early. It comes in
+two implementations, which give the same images to rounding:
+
+- :func:`composite_tiles`, when a gradient is wanted: out-of-place operations that autograd
+  differentiates;
+- :func:`composite_tiles_no_grad`, whenever no gradient can flow (under ``torch.no_grad()``, or
+  when no input requires one), as for rendering a trained model: in place in two reused
+  buffers, the block laid out ``tiles x pixels x L`` so that the scan runs along contiguous
+  memory, the three tests of step 5 as ``torch.threshold`` passes, and colour, depth and alpha
+  summed by one batched matrix product -- several times faster on a CPU.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 
-from pointfield.splats.gaussians import covariances
+from pointfield.splats.gaussians import quaternion_to_rotation
 from pointfield.splats.sh import sh_to_rgb
 
-TILE_SIZE = 16
+TILE_SIZE = 4
 SCREEN_DILATION = 0.3
 MIN_ALPHA = 1.0 / 255.0
 MAX_ALPHA = 0.99
 MIN_TRANSMITTANCE = 1e-4
 SIGMA_EXTENT = 3.0
+# Relative and absolute widening of the reach t of step 2 when binning: far more than any
+# rounding error, far less than a pixel; the per-pixel tests of step 5 stay exact.
+BOUND_SLACK = 1e-3
+# A sigma past 0.5 * SIGMA_EXTENT^2 (the pixel is dropped anyway) whose exp(-sigma) is far from
+# float32 underflow: exp() of denormal results is about a hundred times slower on x86.
+SIGMA_CEILING = 20.0
 
 
 @dataclass
 class Projection:
-    """Splats projected into one camera (step 1 and 2); N entries, ``visible`` marks the kept ones.
+    """Splats projected into one camera (step 1); N entries, ``visible`` marks the kept ones.
 
     ``means2d`` ``(N, 2)`` pixel coordinates, ``conics`` ``(N, 3)`` the upper triangle
     ``(a, b, c)`` of ``Sigma_2d^-1``, ``depths`` ``(N,)`` camera z, ``radii`` ``(N,)`` the 3-sigma
@@ -101,7 +127,9 @@ def project_gaussians(
     z_safe = torch.where(in_depth, z, torch.ones_like(z))
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
 
-    covariance_cam = rotation @ covariances(quats, scales) @ rotation.T
+    # Sigma_2d = J W R S (J W R S)^T: the splat's scaled axes, rotated into the camera
+    # (W R S) then through the Jacobian, whose two rows are few enough to write out.
+    axes = torch.einsum("ij,njk->nik", rotation, quaternion_to_rotation(quats) * scales[:, None, :])
     # The 1.3-field-of-view clamp of 3DGS / gsplat, applied to the Jacobian only.
     tan_fov_x, tan_fov_y = 0.5 * width / fx, 0.5 * height / fy
     limit_x_pos = (width - cx) / fx + 0.3 * tan_fov_x
@@ -110,16 +138,12 @@ def project_gaussians(
     limit_y_neg = cy / fy + 0.3 * tan_fov_y
     tx = z_safe * torch.minimum(torch.maximum(x / z_safe, -limit_x_neg), limit_x_pos)
     ty = z_safe * torch.minimum(torch.maximum(y / z_safe, -limit_y_neg), limit_y_pos)
-    zeros = torch.zeros_like(z_safe)
-    jacobian = torch.stack(
-        [fx / z_safe, zeros, -fx * tx / z_safe**2,
-         zeros, fy / z_safe, -fy * ty / z_safe**2],
-        dim=-1,
-    ).reshape(-1, 2, 3)
-    covariance_2d = jacobian @ covariance_cam @ jacobian.transpose(1, 2)
-    a = covariance_2d[:, 0, 0] + SCREEN_DILATION
-    b = covariance_2d[:, 0, 1]
-    c = covariance_2d[:, 1, 1] + SCREEN_DILATION
+    # J = [[fx/z, 0, -fx tx/z^2], [0, fy/z, -fy ty/z^2]]
+    row_x = (fx / z_safe)[:, None] * axes[:, 0] - (fx * tx / z_safe**2)[:, None] * axes[:, 2]
+    row_y = (fy / z_safe)[:, None] * axes[:, 1] - (fy * ty / z_safe**2)[:, None] * axes[:, 2]
+    a = (row_x * row_x).sum(-1) + SCREEN_DILATION
+    b = (row_x * row_y).sum(-1)
+    c = (row_y * row_y).sum(-1) + SCREEN_DILATION
     determinant = a * c - b * b
     positive = determinant > 0
     determinant_safe = torch.where(positive, determinant, torch.ones_like(determinant))
@@ -150,7 +174,8 @@ def rasterization(
     backgrounds: torch.Tensor | None = None,
     near_plane: float = 0.01,
     far_plane: float = 1e10,
-    max_block_elements: int = 1 << 22,
+    tile_size: int = TILE_SIZE,
+    max_block_elements: int = 1 << 18,
     splats_per_slice: int = 64,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
     """Render N Gaussians into C cameras; differentiable with respect to every tensor input.
@@ -164,8 +189,13 @@ def rasterization(
     - ``viewmats`` ``(C, 4, 4)`` world-to-camera, ``Ks`` ``(C, 3, 3)``, image ``width`` x ``height``;
     - ``backgrounds`` ``(C, D)`` or ``(D,)``: added where the splats leave light through,
       ``colour + T_final * background`` (default: none, i.e. black);
-    - ``max_block_elements``, ``splats_per_slice``: memory and early-termination granularity
-      of the compositing (they change speed, never the result).
+    - ``tile_size``, ``max_block_elements``, ``splats_per_slice``: the tiles' width in pixels
+      and the memory and early-termination granularity of the compositing (they change speed,
+      never the result).
+
+    Where no gradient can flow (under ``torch.no_grad()``, or when no input requires one), the
+    compositing takes its in-place path, :func:`composite_tiles_no_grad`: the same images, to
+    rounding, several times faster.
 
     Returns ``(colors (C, H, W, D), depths (C, H, W), alphas (C, H, W), meta)``. ``depths`` is
     the alpha-weighted sum of camera z (divide by ``alphas`` for the expected depth). ``meta``
@@ -184,6 +214,8 @@ def rasterization(
         >>> rgb.shape, round(float(alpha[0, 16, 16]), 3)
         (torch.Size([1, 32, 32, 3]), 0.88)
     """
+    inputs = (means, quats, scales, opacities, colors, viewmats, Ks, backgrounds)
+    differentiable = torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in inputs)
     camera_count = viewmats.shape[0]
     projections = [
         project_gaussians(means, quats, scales, viewmats[i], Ks[i], width, height, near_plane, far_plane)
@@ -203,9 +235,10 @@ def rasterization(
         background = None
         if backgrounds is not None:
             background = backgrounds if backgrounds.ndim == 1 else backgrounds[i]
-        image, depth, alpha = composite_tiles(
+        composite = composite_tiles if differentiable else composite_tiles_no_grad
+        image, depth, alpha = composite(
             means2d[i], projection.conics, opacities, view_colors, projection.depths,
-            projection.radii, projection.visible, width, height, background, max_block_elements,
+            projection.visible, width, height, background, tile_size, max_block_elements,
             splats_per_slice,
         )
         images.append(image)
@@ -219,35 +252,93 @@ def rasterization(
     return torch.stack(images), torch.stack(depth_images), torch.stack(alpha_images), meta
 
 
-def tile_intersections(
-    means2d: torch.Tensor, radii: torch.Tensor, depths: torch.Tensor, visible: torch.Tensor,
-    tiles_x: int, tiles_y: int,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Steps 3 and 4: the (splat, tile) pairs, sorted by tile then depth.
+def splat_reach(opacities: torch.Tensor) -> torch.Tensor:
+    """How far each splat reaches, as the largest ``sigma``: ``(N,)``, negative for none.
 
-    Returns ``(splat_ids (P,), tile_ids (P,))`` int64 with P pairs; ``tile_id = ty * tiles_x + tx``.
+    A pixel at offset ``d`` from the mean gets ``sigma = 0.5 d^T Sigma_2d^-1 d`` and takes the
+    splat only when ``sigma <= 4.5`` (3 sigma) and ``o exp(-sigma) >= 1/255``, i.e. when
+    ``sigma <= t = min(4.5, ln(255 o))``. Returns ``t``, made a little larger (``BOUND_SLACK``)
+    where it is not negative, so that rounding in the per-pixel tests never reaches past it.
+    """
+    opacities = opacities.detach().to(_precise(opacities.device))
+    limit = torch.clamp_max(torch.log(opacities / MIN_ALPHA), 0.5 * SIGMA_EXTENT**2)
+    return torch.where(limit >= 0, limit * (1 + BOUND_SLACK) + BOUND_SLACK, limit)
+
+
+def tile_intersections(
+    means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor, depths: torch.Tensor,
+    visible: torch.Tensor, width: int, height: int, tile_size: int = TILE_SIZE,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Steps 2 to 4: the (splat, tile) pairs where the splat reaches a pixel, sorted by tile then depth.
+
+    A splat reaches the ellipse ``0.5 d^T Sigma_2d^-1 d <= t`` (``t`` from :func:`splat_reach`).
+    Writing the conic as ``(A, B, C)``, the ellipse's row at height ``dy`` spans
+    ``dx = -(B / A) dy +- sqrt(2t / A - (AC - B^2) / A^2 dy^2)``; its right end is concave in
+    ``dy`` and largest at ``dy_r = Sigma_xy sqrt(2t / Sigma_xx)`` (the left end: smallest at
+    ``-dy_r``). So for each row of tiles the splat spans, the x-range of the ellipse within that
+    band of pixel-centre rows is the right end at ``dy_r`` clamped into the band, and the left
+    end likewise: a pair is made exactly when the ellipse meets a tile's pixel centres' box.
+
+    Returns ``(splat_ids (P,), tile_ids (P,))`` int64, ``tile_id = ty * tiles_x + tx``.
     """
     device = means2d.device
-    ids = torch.nonzero(visible).squeeze(1)
+    tiles_x = math.ceil(width / tile_size)
+    reach = splat_reach(opacities)
+    ids = torch.nonzero(visible & (reach >= 0)).squeeze(1)
     # Depth order first; the stable sort by tile below keeps it within each tile.
-    ids = ids[torch.argsort(depths.detach()[ids], stable=True)]
-    u, v = means2d.detach()[ids].unbind(-1)
-    r = radii[ids]
-    x0 = torch.clamp(torch.floor((u - r) / TILE_SIZE), 0, tiles_x).long()
-    x1 = torch.clamp(torch.floor((u + r) / TILE_SIZE) + 1, 0, tiles_x).long()
-    y0 = torch.clamp(torch.floor((v - r) / TILE_SIZE), 0, tiles_y).long()
-    y1 = torch.clamp(torch.floor((v + r) / TILE_SIZE) + 1, 0, tiles_y).long()
-    span_x = (x1 - x0).clamp_min(0)
-    counts = span_x * (y1 - y0).clamp_min(0)
-    total = int(counts.sum())
-    owner = torch.repeat_interleave(torch.arange(len(ids), device=device), counts)
-    first = torch.cumsum(counts, 0) - counts
-    offset = torch.arange(total, device=device) - first[owner]
-    tile_x = x0[owner] + offset % span_x[owner]
-    tile_y = y0[owner] + offset // span_x[owner]
-    tile_ids = tile_y * tiles_x + tile_x
-    order = torch.argsort(tile_ids, stable=True)
-    return ids[owner[order]], tile_ids[order]
+    ids = ids.index_select(0, torch.argsort(depths.detach().index_select(0, ids), stable=True))
+    # float64: for long thin splats AC - B^2 cancels badly in float32.
+    mean_x, mean_y, a, b, c = _gather([*means2d.detach().T, *conics.detach().T], ids, _precise(device))
+    reach = reach.index_select(0, ids)
+    determinant = a * c - b * b
+    reach_y = torch.sqrt(2 * reach * a / determinant)  # sqrt(2t Sigma_yy)
+    right_dy = -b * torch.sqrt(2 * reach / (c * determinant))  # Sigma_xy sqrt(2t / Sigma_xx)
+    # Pixel rows whose centres (v + 0.5) lie within the ellipse's y-extent, and their tile rows.
+    row_first = torch.clamp(torch.ceil(mean_y - reach_y - 0.5), 0, height).long()
+    row_last = torch.clamp(torch.floor(mean_y + reach_y - 0.5), -1, height - 1).long()
+    band_first = row_first // tile_size
+    bands = torch.where(row_first <= row_last, row_last // tile_size - band_first + 1, 0)
+    band_owner, band_row = _ranges(band_first, bands)
+    mean_x, mean_y, slope, width_at_centre, narrowing, right_dy = _gather(
+        [mean_x, mean_y, b / a, 2 * reach / a, determinant / (a * a), right_dy], band_owner,
+    )
+    row_first, row_last = _gather([row_first, row_last], band_owner)
+    # The band's pixel-centre rows, as offsets dy from the mean.
+    dy_low = torch.maximum(row_first, band_row * tile_size) + (0.5 - mean_y)
+    dy_high = torch.minimum(row_last, band_row * tile_size + (tile_size - 1)) + (0.5 - mean_y)
+    dy_right = torch.minimum(torch.maximum(right_dy, dy_low), dy_high)
+    dy_left = torch.minimum(torch.maximum(-right_dy, dy_low), dy_high)
+    x_high = mean_x - slope * dy_right + torch.sqrt(torch.clamp_min(width_at_centre - narrowing * dy_right**2, 0))
+    x_low = mean_x - slope * dy_left - torch.sqrt(torch.clamp_min(width_at_centre - narrowing * dy_left**2, 0))
+    column_first = torch.clamp(torch.ceil(x_low - 0.5), 0, width).long()
+    column_last = torch.clamp(torch.floor(x_high - 0.5), -1, width - 1).long()
+    tile_first = column_first // tile_size
+    tiles = torch.where(column_first <= column_last, column_last // tile_size - tile_first + 1, 0)
+    pair_band, tile_ids = _ranges(band_row * tiles_x + tile_first, tiles)
+    # Narrow keys sort faster on a CPU: int16 several times, int32 twice as fast as int64.
+    key = torch.int16 if tiles_x * math.ceil(height / tile_size) <= torch.iinfo(torch.int16).max else torch.int32
+    tile_ids, order = torch.sort(tile_ids.to(key), stable=True)
+    return ids.index_select(0, band_owner).index_select(0, pair_band.index_select(0, order)), tile_ids.long()
+
+
+def _precise(device: torch.device) -> torch.dtype:
+    """float64 for the bounds of step 2, except on MPS, which has no float64."""
+    return torch.float32 if device.type == "mps" else torch.float64
+
+
+def _gather(fields: list[torch.Tensor], index: torch.Tensor, dtype: torch.dtype | None = None) -> list[torch.Tensor]:
+    """``[field[index] for field in fields]``, each contiguous (a gather of a (N, F) table is not)."""
+    return [field.to(dtype or field.dtype).index_select(0, index) for field in fields]
+
+
+def _ranges(first: torch.Tensor, counts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ranges ``first[i], first[i] + 1, .., first[i] + counts[i] - 1``, concatenated.
+
+    Returns ``(owner, value)``, both ``(counts.sum(),)``: ``i`` and the integer, per element.
+    """
+    owner = torch.repeat_interleave(counts)
+    start = torch.cumsum(counts, 0) - counts
+    return owner, torch.arange(len(owner), device=counts.device) + (first - start).index_select(0, owner)
 
 
 def composite_tiles(
@@ -256,48 +347,34 @@ def composite_tiles(
     opacities: torch.Tensor,
     colors: torch.Tensor,
     depths: torch.Tensor,
-    radii: torch.Tensor,
     visible: torch.Tensor,
     width: int,
     height: int,
     background: torch.Tensor | None = None,
-    max_block_elements: int = 1 << 22,
+    tile_size: int = TILE_SIZE,
+    max_block_elements: int = 1 << 18,
     splats_per_slice: int = 64,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Steps 3 to 5 for one camera: ``(colors (H, W, D), depths (H, W), alphas (H, W))``.
+    """Steps 2 to 5 for one camera, differentiably: ``(colors (H, W, D), depths (H, W), alphas (H, W))``.
 
-    Each batch of tiles walks its depth-sorted splats ``splats_per_slice`` at a time, carrying
-    the transmittance from slice to slice, and drops a tile once every pixel of it has stopped
-    (T < 1e-4) -- the early termination of the CUDA rasterizers, per tile.
+    Inputs per splat: ``means2d`` ``(N, 2)``, ``conics`` ``(N, 3)``, ``opacities`` ``(N,)``,
+    ``colors`` ``(N, D)``, ``depths`` ``(N,)``, ``visible`` ``(N,)`` bool. Each batch of tiles
+    walks its depth-sorted splats ``splats_per_slice`` at a time in ``(tiles, L, pixels)``
+    blocks, carrying the transmittance from slice to slice, and drops a tile once every pixel
+    of it has stopped (T < 1e-4) -- the early termination of the CUDA rasterizers, per tile.
     """
     device, dtype = means2d.device, means2d.dtype
-    tiles_x, tiles_y = math.ceil(width / TILE_SIZE), math.ceil(height / TILE_SIZE)
-    tile_count = tiles_x * tiles_y
-    splat_ids, tile_ids = tile_intersections(means2d, radii, depths, visible, tiles_x, tiles_y)
-    per_tile = torch.bincount(tile_ids, minlength=tile_count)
-    tile_start = torch.cumsum(per_tile, 0) - per_tile
     channels = colors.shape[-1]
+    pixels_per_tile = tile_size * tile_size
+    tiles_x, tiles_y = math.ceil(width / tile_size), math.ceil(height / tile_size)
+    splat_ids, tile_ids = tile_intersections(means2d, conics, opacities, depths, visible, width, height, tile_size)
+    per_tile = torch.bincount(tile_ids, minlength=tiles_x * tiles_y)
+    tile_start = torch.cumsum(per_tile, 0) - per_tile
+    offsets = torch.arange(tile_size, device=device, dtype=dtype) + 0.5  # pixel centres in a tile
 
-    # Pixel-centre offsets within a tile (the 256 pixels are row-major: v then u).
-    tile_offsets = torch.arange(TILE_SIZE, device=device, dtype=dtype) + 0.5
-    pixels_per_tile = TILE_SIZE * TILE_SIZE
-
-    # Batches of tiles with similar lengths: sort tiles by length, cut where the padded block
-    # (tiles x splats per slice x 256) would pass max_block_elements.
-    tile_order = torch.argsort(per_tile, stable=True)
-    lengths = per_tile[tile_order].tolist()
-    batches, start = [], 0
-    while start < tile_count:
-        end = start + 1
-        while end < tile_count and (end + 1 - start) * min(max(lengths[end], 1), splats_per_slice) * pixels_per_tile <= max_block_elements:
-            end += 1
-        batches.append((start, end, max(lengths[end - 1], 1)))
-        start = end
-
-    color_blocks, depth_blocks, alpha_blocks = [], [], []
-    for start, end, longest in batches:
-        tiles = tile_order[start:end]
-        count = end - start
+    batch_tiles, color_blocks, depth_blocks, alpha_blocks = [], [], [], []
+    for tiles, longest in _tile_batches(per_tile, splats_per_slice, pixels_per_tile, max_block_elements):
+        count = len(tiles)
         color_sum = torch.zeros(count, pixels_per_tile, channels, device=device, dtype=colors.dtype)
         depth_sum = torch.zeros(count, pixels_per_tile, device=device, dtype=dtype)
         alpha_sum = torch.zeros(count, pixels_per_tile, device=device, dtype=dtype)
@@ -309,24 +386,24 @@ def composite_tiles(
             live_tiles = tiles[live]
             slot = torch.arange(first, min(first + splats_per_slice, longest), device=device)
             present = slot[None, :] < per_tile[live_tiles][:, None]                  # (B, L)
-            pair = (tile_start[live_tiles][:, None] + slot[None, :]).clamp_max(max(len(splat_ids) - 1, 0))
-            ids = splat_ids[pair] if len(splat_ids) else torch.zeros_like(pair)        # (B, L)
-            corner = torch.stack([live_tiles % tiles_x, live_tiles // tiles_x], dim=-1).to(dtype) * TILE_SIZE
+            pair = (tile_start[live_tiles][:, None] + slot[None, :]).clamp_max(len(splat_ids) - 1)
+            ids = splat_ids[pair]                                                    # (B, L)
+            corner = torch.stack([live_tiles % tiles_x, live_tiles // tiles_x], dim=-1).to(dtype) * tile_size
             splat_means = means2d[ids]                                               # (B, L, 2)
-            # A tile's pixels are a 16 x 16 grid, so dx depends on the column only and dy on
-            # the row only: (B, L, 16) each, broadcast to (B, L, 16, 16) at the end.
-            dx = (corner[:, None, 0:1] + tile_offsets) - splat_means[..., 0:1]
-            dy = (corner[:, None, 1:2] + tile_offsets) - splat_means[..., 1:2]
+            # A tile's pixels are a grid, so dx depends on the column only and dy on the row
+            # only: (B, L, S) each, broadcast to (B, L, S, S) at the end.
+            dx = (corner[:, None, 0:1] + offsets) - splat_means[..., 0:1]
+            dy = (corner[:, None, 1:2] + offsets) - splat_means[..., 1:2]
             a, b, c = conics[ids][..., None].unbind(-2)                              # (B, L, 1) each
             # sigma = 0.5 d^T Sigma_2d^-1 d = 0.5 a dx^2 + b dx dy + 0.5 c dy^2
             sigma = (
                 (0.5 * a * dx * dx)[..., None, :]
                 + (0.5 * c * dy * dy)[..., :, None]
                 + (b * dy)[..., :, None] * dx[..., None, :]
-            ).flatten(-2)                                                            # (B, L, 256)
+            ).flatten(-2)                                                            # (B, L, S * S)
             # Padding slots get opacity 0, hence alpha 0: they change nothing.
             splat_opacities = torch.where(present, opacities[ids], torch.zeros_like(opacities[ids]))
-            alpha = torch.clamp_max(splat_opacities[..., None] * torch.exp(-sigma), MAX_ALPHA)
+            alpha = torch.clamp_max(splat_opacities[..., None] * torch.exp(-sigma.clamp_max(SIGMA_CEILING)), MAX_ALPHA)
             inside = (sigma <= 0.5 * SIGMA_EXTENT**2) & (alpha >= MIN_ALPHA)
             alpha = torch.where(inside, alpha, torch.zeros_like(alpha))
             transmittance_after = torch.cumprod(1 - alpha, dim=1) * transmittance[live][:, None, :]
@@ -334,33 +411,163 @@ def composite_tiles(
             # so "not stopped yet" is "T after this splat still >= 1e-4".
             counted = transmittance_after >= MIN_TRANSMITTANCE
             # T before splat i is T after it divided by (1 - alpha_i) >= 0.01: no shifted copy.
-            weights = alpha / (1 - alpha) * transmittance_after * counted          # (B, L, 256)
+            weights = alpha / (1 - alpha) * transmittance_after * counted          # (B, L, S * S)
             color_sum = color_sum.index_add(0, live, torch.einsum("blp,bld->bpd", weights, colors[ids]))
             depth_sum = depth_sum.index_add(0, live, torch.einsum("blp,bl->bp", weights, depths[ids]))
             alpha_sum = alpha_sum.index_add(0, live, weights.sum(1))
             transmittance = transmittance.index_copy(0, live, transmittance_after[:, -1])
             # Early termination: a tile is finished when its splats are, or its light is.
-            more = (per_tile[live_tiles] > first + splats_per_slice) & (transmittance_after[:, -1] >= MIN_TRANSMITTANCE).any(1)
+            more = (per_tile[live_tiles] > first + splats_per_slice) & (
+                transmittance_after[:, -1] >= MIN_TRANSMITTANCE).any(1)
             live = live[more]
             if len(live) == 0:
                 break
+        batch_tiles.append(tiles)
         color_blocks.append(color_sum)
         depth_blocks.append(depth_sum)
         alpha_blocks.append(alpha_sum)
 
-    inverse = torch.argsort(tile_order)
-    color_tiles = torch.cat(color_blocks)[inverse]                                   # (T, 256, D)
-    depth_tiles = torch.cat(depth_blocks)[inverse]
-    alpha_tiles = torch.cat(alpha_blocks)[inverse]
+    tile_count = tiles_x * tiles_y
+    color_tiles = colors.new_zeros(tile_count, pixels_per_tile, channels)
+    depth_tiles = means2d.new_zeros(tile_count, pixels_per_tile)
+    alpha_tiles = means2d.new_zeros(tile_count, pixels_per_tile)
+    if batch_tiles:  # empty tiles stay 0
+        filled = torch.cat(batch_tiles)
+        color_tiles = color_tiles.index_copy(0, filled, torch.cat(color_blocks))
+        depth_tiles = depth_tiles.index_copy(0, filled, torch.cat(depth_blocks))
+        alpha_tiles = alpha_tiles.index_copy(0, filled, torch.cat(alpha_blocks))
     if background is not None:
         color_tiles = color_tiles + (1 - alpha_tiles)[..., None] * background
-    image = _untile(color_tiles, tiles_x, tiles_y, channels)[:height, :width]
-    depth = _untile(depth_tiles[..., None], tiles_x, tiles_y, 1)[:height, :width, 0]
-    alpha = _untile(alpha_tiles[..., None], tiles_x, tiles_y, 1)[:height, :width, 0]
+    image = _untile(color_tiles, tiles_x, tiles_y, tile_size, channels)[:height, :width]
+    depth = _untile(depth_tiles[..., None], tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
+    alpha = _untile(alpha_tiles[..., None], tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
     return image, depth, alpha
 
 
-def _untile(values: torch.Tensor, tiles_x: int, tiles_y: int, channels: int) -> torch.Tensor:
-    """``(tiles, 256, D)`` in row-major tile order -> ``(tiles_y * 16, tiles_x * 16, D)``."""
-    blocks = values.reshape(tiles_y, tiles_x, TILE_SIZE, TILE_SIZE, channels)
-    return blocks.permute(0, 2, 1, 3, 4).reshape(tiles_y * TILE_SIZE, tiles_x * TILE_SIZE, channels)
+def composite_tiles_no_grad(
+    means2d: torch.Tensor,
+    conics: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    depths: torch.Tensor,
+    visible: torch.Tensor,
+    width: int,
+    height: int,
+    background: torch.Tensor | None = None,
+    tile_size: int = TILE_SIZE,
+    max_block_elements: int = 1 << 18,
+    splats_per_slice: int = 64,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`composite_tiles` where no gradient is wanted: the same images, computed in place.
+
+    The same arguments, steps and batches; the differences are all for speed. Each slice is a
+    ``(tiles, pixels, L)`` block, so that the scan along L runs over contiguous memory, and
+    every pass over it writes into one of two buffers allocated per batch (fresh large tensors
+    cost more than the arithmetic: allocation, page faults). The tests of step 5 are
+    ``torch.threshold`` passes, exact (``x >= t`` is ``x > nextafter(t, -inf)``), in place of
+    comparisons and masks, which PyTorch runs several times slower on a CPU. Colour, depth and
+    alpha are summed by one batched matrix product of the weights with a per-splat table.
+    """
+    device, dtype = means2d.device, torch.promote_types(means2d.dtype, colors.dtype)
+    channels = colors.shape[-1]
+    pixels_per_tile = tile_size * tile_size
+    tiles_x, tiles_y = math.ceil(width / tile_size), math.ceil(height / tile_size)
+    splat_ids, tile_ids = tile_intersections(means2d, conics, opacities, depths, visible, width, height, tile_size)
+    per_tile = torch.bincount(tile_ids, minlength=tiles_x * tiles_y)
+    tile_start = torch.cumsum(per_tile, 0) - per_tile
+    # One row per splat: mean (2), -conic / 2 with b doubled (3), opacity, then the values
+    # summed over a pixel's splats: colour (D), depth, 1 (for alpha). Then a padding row, of
+    # opacity 0, that the slots past the end of a tile's list point to.
+    splats = torch.cat([
+        means2d, conics * torch.tensor([-0.5, -1.0, -0.5], device=device), opacities[:, None], colors,
+        depths[:, None], torch.ones_like(depths)[:, None],
+    ], dim=1).to(dtype)
+    splats = torch.cat([splats, torch.zeros_like(splats[:1])])
+    splat_ids = torch.cat([splat_ids, torch.tensor([len(opacities)], device=device)])
+    padding_pair = len(splat_ids) - 1
+    inside, visible_alpha, light_left = (
+        float(torch.nextafter(torch.tensor(limit, dtype=dtype), torch.tensor(-math.inf, dtype=dtype)))
+        for limit in (-0.5 * SIGMA_EXTENT**2, MIN_ALPHA, MIN_TRANSMITTANCE)
+    )
+    one = torch.ones((), device=device, dtype=dtype)
+    offsets = torch.arange(tile_size, device=device, dtype=dtype)[:, None] + 0.5     # (S, 1)
+
+    sums = torch.zeros(tiles_x * tiles_y, pixels_per_tile, channels + 2, device=device, dtype=dtype)
+    for tiles, longest in _tile_batches(per_tile, splats_per_slice, pixels_per_tile, max_block_elements):
+        slots = min(splats_per_slice, longest)
+        pixel_x = (tiles % tiles_x * tile_size).to(dtype)[:, None, None] + offsets      # (B, S, 1)
+        pixel_y = (tiles // tiles_x * tile_size).to(dtype)[:, None, None] + offsets
+        alpha_buffer = torch.empty(len(tiles), tile_size, tile_size, slots, device=device, dtype=dtype)
+        scan_buffer = torch.empty(len(tiles), pixels_per_tile, slots + 1, device=device, dtype=dtype)
+        transmittance = torch.ones(len(tiles), pixels_per_tile, 1, device=device, dtype=dtype)
+        live = torch.arange(len(tiles), device=device)
+        for first in range(0, longest, slots):
+            count, live_tiles = len(live), tiles[live]
+            slot = torch.arange(first, first + slots, device=device)
+            pair = torch.where(slot < per_tile[live_tiles, None], tile_start[live_tiles, None] + slot, padding_pair)
+            rows = splats.index_select(0, splat_ids.index_select(0, pair.flatten())).view(count, slots, -1)
+            fields = rows.transpose(1, 2).contiguous()                               # (B, F, L)
+            dx = pixel_x[live] - fields[:, 0:1]                                      # (B, S, L)
+            dy = pixel_y[live] - fields[:, 1:2]
+            # -sigma = -(0.5 a dx^2 + b dx dy + 0.5 c dy^2), as (B, S_y, S_x, L).
+            alpha = alpha_buffer[:count]
+            torch.add((fields[:, 4:5] * dy * dy)[:, :, None], (fields[:, 2:3] * dx * dx)[:, None], out=alpha)
+            alpha.addcmul_((fields[:, 3:4] * dy)[:, :, None], dx[:, None])
+            alpha = alpha.view(count, pixels_per_tile, slots)
+            # Outside 3 sigma: -sigma -> -20, whose alpha the 1/255 test drops (and exp() then
+            # never meets the slow denormals of arguments far below zero).
+            F.threshold_(alpha, inside, -SIGMA_CEILING)
+            alpha.exp_().mul_(fields[:, None, 5]).clamp_max_(MAX_ALPHA)
+            F.threshold_(alpha, visible_alpha, 0.0)
+            # scan[..., k + 1] = T after splat k = T_0 prod_{j <= k} (1 - alpha_j), set to 0 once
+            # below 1e-4; the weight alpha_k T_k is alpha_k / (1 - alpha_k) times it.
+            scan = scan_buffer[:count]
+            scan[..., :1] = transmittance[live]
+            torch.sub(one.expand_as(alpha), alpha, out=scan[..., 1:])
+            weights = alpha.div_(scan[..., 1:])
+            F.threshold_(scan.cumprod_(2), light_left, 0.0)
+            weights.mul_(scan[..., 1:])
+            sums.index_add_(0, live_tiles, torch.bmm(weights, rows[..., 6:]))
+            transmittance[live] = scan[..., -1:]
+            # Early termination: a tile is finished when its splats are, or its light is.
+            more = (per_tile[live_tiles] > first + slots) & (scan[:, :, -1] > 0).any(1)
+            live = live[more]
+            if len(live) == 0:
+                break
+
+    color_tiles, depth_tiles, alpha_tiles = sums.split([channels, 1, 1], dim=-1)
+    if background is not None:
+        color_tiles = color_tiles + (1 - alpha_tiles) * background
+    image = _untile(color_tiles, tiles_x, tiles_y, tile_size, channels)[:height, :width]
+    depth = _untile(depth_tiles, tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
+    alpha = _untile(alpha_tiles, tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
+    return image, depth, alpha
+
+
+def _tile_batches(
+    per_tile: torch.Tensor, splats_per_slice: int, pixels_per_tile: int, max_block_elements: int,
+) -> Iterator[tuple[torch.Tensor, int]]:
+    """The tiles that have splats, in batches of similar length: ``(tile ids (B,), longest)`` each.
+
+    Tiles sorted by their number of splats are cut where a slice of the batch, padded to its
+    longest tile (``tiles x min(length, splats_per_slice) x pixels``), would pass
+    ``max_block_elements``; at least one tile per batch.
+    """
+    tile_order = torch.argsort(per_tile, stable=True)
+    lengths = per_tile[tile_order].tolist()
+    start = next((i for i, length in enumerate(lengths) if length > 0), len(lengths))
+    while start < len(lengths):
+        end = start + 1
+        while end < len(lengths):
+            # The batch's slices if tile `end` joined: padded to its length, the longest so far.
+            if (end + 1 - start) * min(lengths[end], splats_per_slice) * pixels_per_tile > max_block_elements:
+                break
+            end += 1
+        yield tile_order[start:end], lengths[end - 1]
+        start = end
+
+
+def _untile(values: torch.Tensor, tiles_x: int, tiles_y: int, tile_size: int, channels: int) -> torch.Tensor:
+    """``(tiles, S * S, D)`` in row-major tile order -> ``(tiles_y * S, tiles_x * S, D)``."""
+    blocks = values.reshape(tiles_y, tiles_x, tile_size, tile_size, channels)
+    return blocks.permute(0, 2, 1, 3, 4).reshape(tiles_y * tile_size, tiles_x * tile_size, channels)

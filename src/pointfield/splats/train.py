@@ -256,7 +256,7 @@ def train(
     identity = {"task": TASK, "sh_degree": gaussians.sh_degree}
     state = fit(
         gaussians, optimizer, step, batches, rounds, run=run, identity=identity,
-        evaluate=evaluate, on_epoch_end=redraw, resume=resume, max_seconds=max_time,
+        evaluate=evaluate, on_epoch_end=redraw, loss_aliases=("loss",), resume=resume, max_seconds=max_time,
         device=torch_device, progress=progress,
     )
     scores, renders = heldout_scores(gaussians, scene_data, heldout_frames, torch_device, background_color, keep_renders=True)

@@ -1,0 +1,185 @@
+"""Gaussian splats: how fast a 100 x 100 view renders, against the dense reference rasterizer.
+
+The claim (issue 7): a trained lego model (about 20,000 splats) renders a 100 x 100 view at 20
+frames per second or more on this CPU. This benchmark needs no training run; it renders, in
+one run and from the same cameras:
+
+- ``lego-box``: 20,000 splats spread through lego's box [-1.5, 1.5]^3, scales 0.01-0.05,
+  random rotations, opacities and SH colours (degree 3) -- a translucent fog in which almost no
+  pixel saturates, the worst case for early termination;
+- ``lego-surfaces``: 20,000 flat, mostly opaque splats on a sphere and a floor, closer to what
+  training makes of lego;
+- ``3dgs-ply``: the real 3D-Gaussian-splatting file in ../shared/data (9,080 splats, SH degree 3),
+  from a camera at its world origin looking down +z (75 px focal length).
+
+The lego scenes are seen from lego's first camera at 100 x 100 (``--downscale 8``). For each
+scene it reports the render speed of :func:`pointfield.splats.rasterizer.rasterization` without
+gradients (what ``pointfield splat render`` and held-out evaluation run) -- the median wall time
+and the median CPU time of ``--frames`` renders after a warm-up -- the time of one training step
+(the same render with gradients, then ``backward``), and the dense, per-splat reference
+rasterizer's time for ``--reference-frames`` renders: the peer the ratio is taken against. The
+largest difference between the fast image and the reference's shows they draw the same thing.
+
+Run: ``python benchmarks/bench_splat_render.py --threads 1`` (on a busy machine, more threads
+than free cores make PyTorch's thread pool spin and every render many times slower).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+LEGO = SHARED / "nerf" / "lego_blender"
+SPLAT_FILE = SHARED / "gaussians" / "3dgs_point_cloud_iter7000.ply"
+SIZE = 100
+
+
+def lego_camera() -> tuple[torch.Tensor, torch.Tensor]:
+    from pointfield.scenes import read_scene
+    from pointfield.splats.train import camera_matrices
+
+    cameras = read_scene(LEGO).downscaled(8).cameras[[0]]  # 800 x 800 -> 100 x 100
+    assert int(cameras.width[0]) == int(cameras.height[0]) == SIZE
+    return camera_matrices(cameras, torch.device("cpu"))
+
+
+def random_sh(count: int, generator: torch.Generator) -> torch.Tensor:
+    return torch.randn(count, 16, 3, generator=generator) * torch.tensor([1.0] + [0.15] * 15)[:, None]
+
+
+def lego_box(count: int = 20_000, seed: int = 0) -> list[torch.Tensor]:
+    generator = torch.Generator().manual_seed(seed)
+    means = torch.rand(count, 3, generator=generator) * 3 - 1.5
+    quats = torch.randn(count, 4, generator=generator)
+    scales = torch.exp(torch.empty(count, 3).uniform_(math.log(0.01), math.log(0.05), generator=generator))
+    opacities = torch.rand(count, generator=generator) * 0.95 + 0.02
+    return [means, quats, scales, opacities, random_sh(count, generator)]
+
+
+def lego_surfaces(count: int = 20_000, seed: int = 0) -> list[torch.Tensor]:
+    generator = torch.Generator().manual_seed(seed)
+    on_sphere = count // 2
+    normals = torch.randn(on_sphere, 3, generator=generator)
+    normals = normals / normals.norm(dim=1, keepdim=True)
+    floor = torch.cat([torch.rand(count - on_sphere, 2, generator=generator) * 3 - 1.5,
+                       torch.full((count - on_sphere, 1), -0.9)], dim=1)
+    means = torch.cat([0.8 * normals, floor])
+    normals = torch.cat([normals, torch.tensor([[0.0, 0.0, 1.0]]).expand(count - on_sphere, 3)])
+    # The quaternion (wxyz) turning +z onto the normal: axis z x n, w = 1 + z . n.
+    quats = torch.stack([1 + normals[:, 2], -normals[:, 1], normals[:, 0], torch.zeros(count)], dim=1)
+    size = torch.exp(torch.empty(count).uniform_(math.log(0.02), math.log(0.05), generator=generator))
+    scales = torch.stack([size, size, 0.05 * size], dim=1)
+    opacities = torch.rand(count, generator=generator) * 0.5 + 0.5
+    return [means, quats, scales, opacities, random_sh(count, generator)]
+
+
+def splat_file() -> list[torch.Tensor]:
+    from pointfield.splats.ply import read_splats
+
+    gaussians = read_splats(SPLAT_FILE)
+    with torch.no_grad():
+        return [gaussians.means.detach(), gaussians.quats.detach(), gaussians.scales.detach(),
+                gaussians.opacities.detach(), gaussians.sh_coefficients.detach()]
+
+
+def origin_camera() -> tuple[torch.Tensor, torch.Tensor]:
+    K = torch.tensor([[[75.0, 0, SIZE / 2], [0, 75.0, SIZE / 2], [0, 0, 1]]])
+    return torch.eye(4)[None], K
+
+
+def timed(render, count: int) -> tuple[list[float], list[float]]:
+    """Wall and CPU seconds of ``count`` calls of ``render``, after one warm-up call."""
+    render()
+    walls, cpus = [], []
+    for _ in range(count):
+        wall, cpu = time.perf_counter(), time.process_time()
+        render()
+        walls.append(time.perf_counter() - wall)
+        cpus.append(time.process_time() - cpu)
+    return walls, cpus
+
+
+def measure(splats: list[torch.Tensor], viewmats: torch.Tensor, Ks: torch.Tensor, args) -> dict:
+    from pointfield.splats.rasterizer import rasterization
+    from pointfield.splats.reference import rasterization_reference
+
+    background = torch.ones(3)
+    arguments = (viewmats, Ks, SIZE, SIZE)
+    options = dict(sh_degree=3, backgrounds=background)
+
+    def render():
+        with torch.no_grad():
+            return rasterization(*splats, *arguments, **options)
+
+    def train_step():
+        parameters = [tensor.clone().requires_grad_() for tensor in splats]
+        colors, _, alphas, _ = rasterization(*parameters, *arguments, **options)
+        (colors.sum() + alphas.sum()).backward()
+
+    walls, cpus = timed(render, args.frames)
+    step_walls, step_cpus = timed(train_step, args.train_steps)
+    result = {
+        "splats": len(splats[0]),
+        "render": {"median_seconds": statistics.median(walls), "fps": 1 / statistics.median(walls),
+                   "median_cpu_seconds": statistics.median(cpus), "cpu_fps": 1 / statistics.median(cpus)},
+        "train_step": {"median_seconds": statistics.median(step_walls),
+                       "median_cpu_seconds": statistics.median(step_cpus)},
+    }
+    if args.reference_frames:
+        reference_walls = []
+        for _ in range(args.reference_frames):
+            start = time.perf_counter()
+            reference = rasterization_reference(*splats, *arguments, **options)
+            reference_walls.append(time.perf_counter() - start)
+        fast = render()
+        reference_seconds = statistics.median(reference_walls)
+        result["reference"] = {
+            "median_seconds": reference_seconds, "fps": 1 / reference_seconds,
+            "speedup": reference_seconds / statistics.median(walls),
+            "max_abs_difference": {name: float((a - b).abs().max())
+                                   for name, a, b in zip(("colors", "depths", "alphas"), fast[:3], reference)},
+        }
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=20, help="renders to time per scene")
+    parser.add_argument("--train-steps", type=int, default=5, help="training steps to time per scene")
+    parser.add_argument("--reference-frames", type=int, default=1,
+                        help="renders of the dense reference per scene (0: skip it; one takes seconds)")
+    parser.add_argument("--scenes", nargs="+", default=["lego-box", "lego-surfaces", "3dgs-ply"],
+                        choices=["lego-box", "lego-surfaces", "3dgs-ply"])
+    parser.add_argument("--threads", type=int, help="torch.set_num_threads (default: PyTorch's)")
+    parser.add_argument("--out", type=Path, help="also write the results to this JSON file")
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+
+    scenes = {
+        "lego-box": lambda: (lego_box(), *lego_camera()),
+        "lego-surfaces": lambda: (lego_surfaces(), *lego_camera()),
+        "3dgs-ply": lambda: (splat_file(), *origin_camera()),
+    }
+    results = {"size": f"{SIZE}x{SIZE}", "threads": torch.get_num_threads(), "scenes": {}}
+    for name in args.scenes:
+        splats, viewmats, Ks = scenes[name]()
+        results["scenes"][name] = measure(splats, viewmats, Ks, args)
+        print(name, json.dumps(results["scenes"][name]), flush=True)
+    print(json.dumps(results, indent=2))
+    if args.out:
+        from pointfield.atomic import atomic_path
+
+        with atomic_path(args.out) as tmp:
+            tmp.write_text(json.dumps(results, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
