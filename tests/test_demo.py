@@ -1,4 +1,4 @@
-"""The demo: every format and encoding round-trips the built-in clouds, and failures are caught."""
+"""The demo: the built-in clouds round-trip through every format; failures are caught; NeRF."""
 
 from __future__ import annotations
 
@@ -10,7 +10,15 @@ from pointfield.cli import main
 from pointfield.clouds import synthetic
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats import formats
-from pointfield.demo import RoundTrip, compare, demo_clouds, run_demo
+from pointfield.demo import (
+    NERF_QUICK_SETTINGS,
+    RoundTrip,
+    compare,
+    demo_clouds,
+    run_demo,
+    train_nerf_cube,
+)
+from pointfield.errors import PointfieldError
 
 
 @pytest.fixture(scope="module")
@@ -71,6 +79,40 @@ def test_cli_demo_exits_zero_and_writes_the_sheet(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--quick"]) == 0
     assert "round trips ok" in capsys.readouterr().out
     assert (tmp_path / "clouds.png").is_file()
+
+
+def test_the_nerf_part_trains_on_the_cube_and_writes_a_turntable(demo):
+    import imageio.v3 as iio
+
+    report, printed, out_dir = demo
+    nerf = report.nerf
+    assert nerf.run == out_dir / "nerf-cube" and (nerf.run / "metrics.json").is_file()
+    assert nerf.metrics["steps"] == NERF_QUICK_SETTINGS.steps
+    frames = iio.imread(nerf.turntable, index=None)
+    size = NERF_QUICK_SETTINGS.size
+    # colour | depth | opacity side by side
+    assert frames.shape[:3] == (NERF_QUICK_SETTINGS.frames, size, 3 * size)
+    assert f"held-out PSNR {nerf.metrics['psnr']:.2f} dB" in printed
+    assert str(nerf.turntable) in printed and str(nerf.run) in printed
+
+
+def test_a_second_demo_replaces_the_nerf_run_of_the_first(tmp_path):
+    first = train_nerf_cube(tmp_path / "nerf-cube", NERF_QUICK_SETTINGS, progress=False,
+                            print_fn=lambda line: None)
+    (first.run / "left-by-the-first.txt").write_text("x")
+    second = train_nerf_cube(tmp_path / "nerf-cube", NERF_QUICK_SETTINGS, progress=False,
+                             print_fn=lambda line: None)
+    assert second.turntable.is_file() and not (second.run / "left-by-the-first.txt").exists()
+
+
+def test_the_nerf_part_refuses_to_replace_a_folder_that_is_not_its_run(tmp_path):
+    precious = tmp_path / "nerf-cube" / "precious.txt"
+    precious.parent.mkdir()
+    precious.write_text("keep me")
+    with pytest.raises(PointfieldError, match="something other than the demo's NeRF run"):
+        train_nerf_cube(precious.parent, NERF_QUICK_SETTINGS, progress=False,
+                        print_fn=lambda line: None)
+    assert precious.read_text() == "keep me"
 
 
 def _trip() -> RoundTrip:

@@ -58,6 +58,54 @@ def test_fit_logs_one_record_per_epoch_and_checkpoints(tmp_path):
     assert payload["state"]["epoch"] == 3 and len(payload["state"]["history"]) == 3
 
 
+def test_the_progress_bar_shows_the_running_mean_of_the_loss_and_every_stat(monkeypatch):
+    import pointfield.training.loop as loop
+
+    shown: list[dict[str, str]] = []
+
+    class Bar:
+        def update(self, count):
+            pass
+
+        def set_postfix(self, values):
+            shown.append(dict(values))
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(loop, "_progress_bar", lambda *args: Bar())
+    losses, psnrs = iter([0.5, 0.25, 0.125]), iter([10.0, 20.0, 40.0])
+
+    model = nn.Linear(1, 1)
+
+    def step(batch):
+        return model(batch).sum() * 0 + next(losses), {"psnr": next(psnrs)}
+
+    fit(model, torch.optim.SGD(model.parameters(), lr=0.0), step,
+        lambda epoch: [torch.ones(1, 1)] * 3 if epoch == 0 else [], 1, log=lambda line: None)
+    assert shown == [{"loss": "0.5", "psnr": "10.00"}, {"loss": "0.375", "psnr": "15.00"},
+                     {"loss": "0.2917", "psnr": "23.33"}]
+    assert list(shown[0]) == ["loss", "psnr"]
+
+
+def test_loss_aliases_repeat_the_training_loss_in_each_record_but_not_in_the_printed_line(tmp_path):
+    model, optimizer, batches, step = toy_problem()
+    run = RunDirectory(tmp_path)
+    run.create(resume=False)
+    lines: list[str] = []
+    fit(model, optimizer, step, batches, 2, run=run, loss_aliases=("loss",), progress=False,
+        log=lines.append)
+    records = run.read_metrics_log()
+    assert all(r["loss"] == r["train_loss"] for r in records)
+    assert all(" loss " not in line.replace("train loss", "") for line in lines)
+
+
+def test_records_have_no_loss_alias_unless_asked(tmp_path):
+    model, optimizer, batches, step = toy_problem()
+    state = fit(model, optimizer, step, batches, 1, progress=False, log=lambda line: None)
+    assert "loss" not in state.history[0] and "train_loss" in state.history[0]
+
+
 def test_resuming_after_an_epoch_gives_the_same_model_as_never_stopping(tmp_path):
     model, optimizer, batches, step = toy_problem()
     fit(model, optimizer, step, batches, 4, progress=False, log=lambda line: None)

@@ -11,8 +11,13 @@ A model plugs in with two callables:
 loss and stats over the epoch (over all processes, in a distributed run); call ``evaluate``
 after each epoch; log one record per epoch to ``metrics.jsonl``; checkpoint at the end of each
 epoch and every ``checkpoint_seconds`` within one; resume from the last checkpoint; stop at
-``max_seconds``; show a progress bar. A loss that is NaN or infinite stops training with an
+``max_seconds``; show a progress bar with the epoch's running means of the loss and of every
+stat (``loss=0.0123, psnr=19.12``). A loss that is NaN or infinite stops training with an
 error naming the epoch and step, never a silently ruined model.
+
+An epoch's record holds ``epoch``, ``step``, ``seconds``, ``lr``, the epoch's mean loss as
+``train_loss`` (and under each of ``loss_aliases``), the mean of each stat as ``train_<stat>``,
+and what ``evaluate`` returned.
 
 Resuming restores the model, optimizer, scheduler, torch's random generator and the position
 within the epoch, and rewrites ``metrics.jsonl`` from the history kept in the checkpoint, so
@@ -71,6 +76,7 @@ def fit(
     scheduler: Any = None,
     evaluate: Callable[[int], dict[str, float]] | None = None,
     on_epoch_end: Callable[[list[dict[str, Any]]], None] | None = None,
+    loss_aliases: tuple[str, ...] = (),
     resume: bool = False,
     checkpoint_seconds: float | None = 300.0,
     max_seconds: float | None = None,
@@ -85,9 +91,11 @@ def fit(
     distributed run every process passes the same ``run`` (all read the checkpoint when
     resuming) and only rank 0 writes. ``evaluate(epoch)`` returns metrics to add to the
     epoch's record (it must be collective in a distributed run); ``on_epoch_end(history)``
-    runs on rank 0 after each record is logged (to redraw plots, say). ``identity`` is stored
-    in checkpoints and must match when resuming. ``log`` receives one line per epoch
-    (default: printed above the progress bar).
+    runs on rank 0 after each record is logged (to redraw plots, say). ``loss_aliases`` are
+    more record keys for the epoch's mean training loss besides ``train_loss`` (NeRF and
+    splat records name it ``loss`` too, as their issues do); the printed line leaves them out.
+    ``identity`` is stored in checkpoints and must match when resuming. ``log`` receives one
+    line per epoch (default: printed above the progress bar).
     """
     is_main = distributed is None or distributed.is_main
     device = device or next(model.parameters()).device
@@ -139,7 +147,7 @@ def fit(
             _accumulate(state.running, {"loss": float(loss.detach()), **stats})
             state.seconds = seconds_before + time.perf_counter() - session_start
             bar.update(1)
-            bar.set_postfix(loss=f"{state.running['loss'] / state.running['batches']:.4f}")
+            bar.set_postfix(_running_means(state.running))
             if max_seconds is not None and state.seconds >= max_seconds:
                 out_of_time = True
             if out_of_time or (
@@ -155,11 +163,16 @@ def fit(
         if out_of_time and total is not None and state.batch < total:
             break
         record = _finish_epoch(state, distributed, device)
+        if "train_loss" in record:  # an epoch without batches has no loss to alias
+            record.update({alias: record["train_loss"] for alias in loss_aliases})
         if scheduler is not None:
             scheduler.step()
         record["lr"] = optimizer.param_groups[0]["lr"]
         if evaluate is not None:
+            evaluation_started = time.perf_counter()
             record.update(evaluate(state.epoch))
+            # Kept apart so benchmarks can report training time without evaluation time.
+            record["evaluation_seconds"] = round(time.perf_counter() - evaluation_started, 3)
         state.epoch += 1
         state.seconds = seconds_before + time.perf_counter() - session_start
         record = {"epoch": state.epoch, "step": state.step, "seconds": round(state.seconds, 3),
@@ -168,7 +181,7 @@ def fit(
         if is_main:
             if run is not None:
                 run.write_metrics_log(state.history)
-            write(_format_record(record, epochs))
+            write(_format_record(record, epochs, hidden=loss_aliases))
             if on_epoch_end is not None:
                 on_epoch_end(state.history)
         checkpoint()
@@ -180,6 +193,23 @@ def _accumulate(running: dict[str, float], values: dict[str, float]) -> None:
     for name, value in values.items():
         running[name] = running.get(name, 0.0) + float(value)
     running["batches"] = running.get("batches", 0.0) + 1
+
+
+def _running_means(running: dict[str, float]) -> dict[str, str]:
+    """The epoch's means so far, loss first, formatted for the progress bar.
+
+    A stat's mean is the mean of its per-batch values (as in the epoch's record): for PSNR, the
+    mean of the batches' PSNR, not the PSNR of their mean squared error.
+    """
+    count = running["batches"]
+    return {name: _short(total / count) for name, total in running.items() if name != "batches"}
+
+
+def _short(value: float) -> str:
+    """Four significant digits below 1 (a loss of 0.0001234), two decimals up to 1000, else none."""
+    if abs(value) < 1:
+        return f"{value:.4g}"
+    return f"{value:.2f}" if abs(value) < 1000 else f"{value:.0f}"
 
 
 def _finish_epoch(
@@ -199,10 +229,10 @@ def _finish_epoch(
     }
 
 
-def _format_record(record: dict[str, Any], epochs: int) -> str:
+def _format_record(record: dict[str, Any], epochs: int, hidden: tuple[str, ...] = ()) -> str:
     parts = [f"epoch {record['epoch']}/{epochs}"]
     for name, value in record.items():
-        if name in ("epoch", "step", "seconds", "lr"):
+        if name in ("epoch", "step", "seconds", "lr", "evaluation_seconds") or name in hidden:
             continue
         parts.append(f"{name.replace('_', ' ')} {value:.4f}" if isinstance(value, float)
                      else f"{name} {value}")
@@ -221,7 +251,7 @@ class _NoBar:
     def update(self, count: int) -> None:
         pass
 
-    def set_postfix(self, **values: Any) -> None:
+    def set_postfix(self, values: dict[str, str]) -> None:
         pass
 
     def close(self) -> None:
