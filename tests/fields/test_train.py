@@ -31,7 +31,8 @@ def test_run_folder_holds_config_metrics_checkpoint_curves_and_heldout_renders(t
     assert {"psnr", "ssim", "steps", "seconds"} <= set(final) and final["steps"] == 4
     records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in records] == [2, 4]
-    assert all({"seconds", "train_loss", "psnr"} <= set(r) for r in records)
+    assert all({"seconds", "loss", "train_loss", "train_psnr", "psnr"} <= set(r) for r in records)
+    assert all(r["loss"] == r["train_loss"] for r in records)
     payload = torch.load(out / "checkpoints" / "last.pt", weights_only=True)
     assert payload["identity"]["model"] == "tiny"
 
@@ -72,10 +73,19 @@ def test_render_paths_write_frames(tiny_run, tmp_path, path, suffix):
         assert len(list(out.glob("color_*.png"))) == 3 and len(list(out.glob("depth_*.png"))) == 3
 
 
-def test_a_render_path_with_no_frames_is_an_error_and_writes_nothing(tiny_run, tmp_path):
+def test_a_render_path_with_no_frames_is_an_error_and_writes_nothing(tiny_run, tmp_path, capsys):
     out = tmp_path / "none.gif"
     assert main(["nerf", "render", str(tiny_run[0]), "--frames", "0", "--out", str(out)]) == 1
+    assert "needs at least one frame, got --frames 0" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_render_path_with_no_frames_leaves_an_earlier_render_alone(tiny_run, tmp_path):
+    out = tmp_path / "earlier.gif"
+    out.write_bytes(b"an earlier render")
+    with pytest.raises(PointfieldError, match="at least one frame"):
+        render(tiny_run[0], path="orbit", frames=0, out=out, device="cpu")
+    assert out.read_bytes() == b"an earlier render"
 
 
 def test_a_checkpoint_of_another_model_is_refused(tiny_run, tmp_path):
@@ -87,9 +97,23 @@ def test_a_checkpoint_of_another_model_is_refused(tiny_run, tmp_path):
     (out / "checkpoints" / "last.pt").write_bytes((tiny_run[0] / "checkpoints" / "last.pt").read_bytes())
     with pytest.raises(PointfieldError, match="model 'tiny', expected 'nerf'"):
         evaluate(out, device="cpu")
+    with pytest.raises(PointfieldError, match="model 'tiny', expected 'nerf'"):
+        render(out, frames=2, out=tmp_path / "other.gif", device="cpu")
+    assert not (tmp_path / "other.gif").exists()
 
 
-def test_a_scene_without_images_is_a_clear_error_and_creates_no_run(tmp_path):
+def test_a_run_of_another_task_is_refused_and_the_output_is_left_alone(tmp_path, capsys):
+    classify_run = tmp_path / "classify"
+    classify_run.mkdir()
+    (classify_run / "config.json").write_text(json.dumps({"task": "classify", "model": "pointnet"}))
+    out = tmp_path / "earlier.gif"
+    out.write_bytes(b"an earlier render")
+    assert main(["nerf", "render", str(classify_run), "--out", str(out), "--device", "cpu"]) == 1
+    assert "not a NeRF run (task 'classify', model 'pointnet')" in capsys.readouterr().err
+    assert out.read_bytes() == b"an earlier render"
+
+
+def test_a_scene_without_images_is_a_clear_error_and_creates_no_run(tmp_path, capsys):
     scene = tmp_path / "scene"
     scene.mkdir()
     (scene / "transforms_train.json").write_text(json.dumps({
@@ -98,6 +122,7 @@ def test_a_scene_without_images_is_a_clear_error_and_creates_no_run(tmp_path):
     }))
     out = tmp_path / "run"
     assert main(["nerf", "train", str(scene), "--out", str(out), "--steps", "1", "--holdout-every", "2"]) == 1
+    assert "no frame has its image" in capsys.readouterr().err
     assert not (out / "config.json").exists()
 
 

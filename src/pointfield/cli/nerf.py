@@ -30,10 +30,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train = verbs.add_parser("train", help="train a NeRF model into a run folder")
     train.add_argument("scene", nargs="?", type=Path, metavar="SCENE",
                        help="posed-image dataset (default: the built-in synthetic cube)")
-    train.add_argument("--model", choices=("tiny", "nerf"), default="tiny",
-                       help="tiny (TinyNeRF, 4x128, 64 samples; default) or nerf (8x256 coarse + fine)")
+    train.add_argument("--model", choices=("tiny", "nerf", "ngp"), default="tiny",
+                       help="tiny (TinyNeRF, 4x128, 64 samples; default), nerf (8x256 coarse + fine) or "
+                       "ngp (hash grid, occupancy grid / proposal sampler: the fast one)")
     train.add_argument("--out", type=Path, default=Path("runs/nerf"), help="run folder (default runs/nerf)")
-    train.add_argument("--steps", type=int, help="optimizer steps (default: tiny 2000, nerf 5000)")
+    train.add_argument("--steps", type=int, help="optimizer steps (default: tiny 2000, nerf 5000, ngp 3000)")
     train.add_argument("--max-time", type=float, metavar="SECONDS", help="stop after this much training time")
     train.add_argument("--batch-rays", type=int, default=1024, help="rays per step (default 1024)")
     train.add_argument("--downscale", type=int, default=1, help="divide image sizes by this integer (default 1)")
@@ -42,8 +43,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--background", help="white, black or 'r,g,b' to composite alpha onto (default: the scene's)")
     train.add_argument("--eval-every", type=int, metavar="STEPS",
                        help="evaluate on held-out views every STEPS steps (default: every epoch, at most 500)")
-    train.add_argument("--lr", dest="learning_rate", type=float, default=5e-4,
-                       help="Adam learning rate, decayed to a tenth over the run (default 5e-4)")
+    train.add_argument("--lr", dest="learning_rate", type=float,
+                       help="Adam learning rate, decayed to a tenth over the run (default: 5e-4, ngp 1e-2)")
+    train.add_argument("--scene-box", default="auto", metavar="BOX",
+                       help="ngp only: auto (default: objects on transparent backgrounds are bounded, "
+                       "real photos unbounded), bounded, unbounded, or 'x0,y0,z0,x1,y1,z1' (a bounded box)")
     train.add_argument("--device", help=DEVICE_HELP)
     train.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
@@ -95,6 +99,7 @@ def run_train(args: argparse.Namespace) -> int:
         batch_rays=args.batch_rays, downscale=args.downscale, holdout_every=args.holdout_every,
         background=background, device=args.device, seed=args.seed, resume=args.resume,
         eval_every=args.eval_every, learning_rate=args.learning_rate, progress=args.progress,
+        scene_box=[float(v) for v in args.scene_box.split(",")] if "," in args.scene_box else args.scene_box,
     )
     print(f"nerf run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f} "
           f"({metrics['steps']} steps, {metrics['seconds']:.0f} s); see {args.out / 'metrics.json'}")

@@ -7,6 +7,10 @@ The vocabulary follows the data: cameras -> rays -> samples -> field -> composit
 - :mod:`~pointfield.fields.rendering`: volumetric compositing (colour, depth, opacity, weights)
   of any field given as a callable ``(positions, directions) -> (sigma, rgb)``.
 - :mod:`~pointfield.fields.nerf`: TinyNeRF and NeRF (coarse + fine).
+- :mod:`~pointfield.fields.hashgrid`: Instant-NGP's multiresolution hash encoding (and its reference).
+- :mod:`~pointfield.fields.ngp`: the fast field (``--model ngp``): hash grid, occupancy grid,
+  packed ray marching, early termination.
+- :mod:`~pointfield.fields.proposal`: unbounded scenes: scene contraction, proposal sampler.
 - :mod:`~pointfield.fields.train`: training and evaluation on a scene (``pointfield nerf``).
 - :mod:`~pointfield.fields.views`: rendering camera paths to GIF / MP4 / PNG.
 - :mod:`~pointfield.fields.exercise`: the lesson's TinyNeRF exercise as a report.

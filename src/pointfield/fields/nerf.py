@@ -132,12 +132,18 @@ class NeRF(nn.Module):
         return [coarse, fine]
 
 
-MODELS: dict[str, type[nn.Module]] = {"tiny": TinyNeRF, "nerf": NeRF}
+def _instant_ngp(**options: Any) -> nn.Module:
+    from pointfield.fields.ngp import InstantNGP
+
+    return InstantNGP(**options)
+
+
+MODELS: dict[str, Any] = {"tiny": TinyNeRF, "nerf": NeRF, "ngp": _instant_ngp}
 """``--model`` name -> class."""
 
 
 def build_model(name: str, **options: Any) -> nn.Module:
-    """The model called ``name`` ("tiny" or "nerf"), with constructor ``options``."""
+    """The model called ``name`` ("tiny", "nerf" or "ngp"), with constructor ``options``."""
     if name not in MODELS:
         raise ValueError(f"unknown NeRF model {name!r}; choose one of {', '.join(MODELS)}")
     return MODELS[name](**options)

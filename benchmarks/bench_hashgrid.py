@@ -1,0 +1,397 @@
+"""Hash-grid throughput and Instant-NGP memory (issue 6).
+
+(a) **Throughput**: forward + backward of the multiresolution hash encoding in samples per second,
+for each implementation in :mod:`pointfield.fields.hashgrid` -- ``compiled`` (torch.compile),
+``eager`` (hand-written backward) and ``reference_hash_encoding`` -- beside TinyNeRF's dense MLP
+field (``RadianceMLP(depth=4, width=128, skips=(), color_width=64)`` on the same points, with
+random view directions) and the whole :class:`~pointfield.fields.ngp.NGPField` (encoding + density
+and colour MLPs). Each is timed as the median of ``--repeats`` calls after a first call whose time
+is reported on its own (for ``compiled`` it includes compilation; torch caches compiled kernels
+on disk, so a second run of the benchmark compiles faster); the forward pass alone (without
+gradients) is timed likewise. Also timed: one Adam step over the field's parameters, which
+moves every table entry every step.
+
+(b) **Memory**: the parameter count of :class:`~pointfield.fields.ngp.InstantNGP`, and the peak
+resident memory (``VmHWM`` on Linux, else ``ru_maxrss``; on CUDA also
+``torch.cuda.max_memory_allocated``) of training it, each image size in a fresh subprocess,
+mirroring ``pointfield nerf train``: the rays of every training view in memory (``scene_rays``;
+90 views as lego with ``--holdout-every 10``), ``--memory-steps`` training steps whose ray count
+adapts to ``InstantNGP.target_samples`` samples per step (occupancy grid, early termination,
+Adam), then a held-out view rendered in ``RENDER_CHUNK``-ray chunks as the evaluation does -- at
+100 x 100 all of it, at 800 x 800 the first ``--render-chunks`` chunks (through the middle of the
+view, where rays cross the most of the box; every chunk costs about the same memory, and the
+whole view takes many minutes on a CPU). The model is untrained -- the worst case: the occupancy
+grid has seen one update (half its cells stay occupied), no ray terminates early. The scene is synthetic: NeRF-synthetic
+cameras (4 units from the origin, lego's field of view) and blank images, since memory does not
+depend on the pixels. The peak is reported after each phase, so one sees which phase set it.
+
+Configurations: ``lego`` -- what ``pointfield nerf train lego --model ngp`` builds: the defaults
+of ``InstantNGP`` with ``max_resolution`` set from the image size (twice its side: 200 for the
+100 x 100 lego benchmark the throughput is measured for, 1600 at 800 x 800), or what
+``--levels/--features/--log2-table/--max-resolution`` say -- and ``paper`` (Müller et al. 2022:
+16 levels, F = 2, 2^19 entries, N_max 2048); listed once when they are the same.
+
+Run: ``make bench-hashgrid`` (= ``.venv/bin/python benchmarks/bench_hashgrid.py``), a few minutes
+on 2 cores; shorter: ``--points 16384 --repeats 2 --memory-steps 2 --render-chunks 1``, or
+``--skip-memory`` / ``--skip-compiled``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+import os
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+import warnings
+from collections.abc import Callable
+
+import torch
+
+PAPER = {"levels": 16, "features_per_level": 2, "log2_table_size": 19, "max_resolution": 2048}
+TRAINING_VIEWS = 90  # lego at --holdout-every 10
+BOX = ((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5))  # lego's box is about +-1.6
+TARGET_GB = 24.0
+THROUGHPUT_SIZE = 100  # the lego benchmark's image size
+
+
+def lego_config(args: argparse.Namespace, size: int) -> dict[str, int]:
+    """What ``pointfield nerf train lego --model ngp`` builds for ``size``-pixel views, or the command line's.
+
+    InstantNGP's constructor defaults, with ``max_resolution`` from the image size as the training
+    command sets it (:func:`pointfield.fields.ngp.default_max_resolution`).
+    """
+    from types import SimpleNamespace
+
+    from pointfield.fields.ngp import InstantNGP, default_max_resolution
+
+    defaults = {name: parameter.default for name, parameter in inspect.signature(InstantNGP).parameters.items()}
+    side = torch.tensor([size])
+    views = SimpleNamespace(cameras=SimpleNamespace(width=side, height=side))
+    defaults["max_resolution"] = default_max_resolution(views, unbounded=False)
+    chosen = {
+        "levels": args.levels, "features_per_level": args.features,
+        "log2_table_size": args.log2_table, "max_resolution": args.max_resolution,
+    }
+    return {name: int(defaults[name] if value is None else value) for name, value in chosen.items()}
+
+
+def configurations(args: argparse.Namespace) -> dict[str, Callable[[int], dict[str, int]]]:
+    """Name -> the configuration for an image size; "lego" is left out where it is the paper's."""
+    configs = {"lego": lambda size: lego_config(args, size), "paper": lambda size: dict(PAPER)}
+    if all(lego_config(args, size) == PAPER for size in (100, *args.sizes)):
+        return {"lego = paper": configs["paper"]}
+    return configs
+
+
+def describe(config: dict[str, int]) -> str:
+    return (f"L={config['levels']} F={config['features_per_level']} T=2^{config['log2_table_size']} "
+            f"N_max={config['max_resolution']}")
+
+
+# -- (a) throughput -----------------------------------------------------------------------------------
+
+
+def synchronize(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def time_calls(run, repeats: int, device: torch.device) -> tuple[float, float]:
+    """``(first call seconds, median seconds of the next ``repeats`` calls)``."""
+    synchronize(device)
+    started = time.perf_counter()
+    run()
+    synchronize(device)
+    first = time.perf_counter() - started
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        run()
+        synchronize(device)
+        times.append(time.perf_counter() - started)
+    return first, statistics.median(times)
+
+
+def encoding_calls(encoding, encode, points, upstream):
+    """``(forward, forward + backward)`` of ``encode(encoding, points)``, the latter into the table's gradient."""
+
+    def forward():
+        with torch.no_grad():
+            encode(encoding, points)
+
+    def forward_backward():
+        encoding.table.grad = None
+        (encode(encoding, points) * upstream).sum().backward()
+
+    return forward, forward_backward
+
+
+def field_calls(field, points, directions):
+    """``(forward, forward + backward)`` of a radiance field ``(x, d) -> (sigma, rgb)``, into its parameters."""
+
+    def forward():
+        with torch.no_grad():
+            field(points, directions)
+
+    def forward_backward():
+        field.zero_grad(set_to_none=True)
+        sigma, rgb = field(points, directions)
+        (sigma.sum() + rgb.sum()).backward()
+
+    return forward, forward_backward
+
+
+def adam_step_seconds(config: dict[str, int], args: argparse.Namespace, device: torch.device) -> dict[str, float]:
+    """Median seconds of one Adam step over an NGPField's parameters (dense: every table entry moves)."""
+    from pointfield.fields.ngp import NGPField
+
+    field = NGPField(**config, backend="eager").to(device)
+    for parameter in field.parameters():
+        parameter.grad = torch.randn_like(parameter)
+    seconds = {}
+    for name, options in (("default", {}), ("fused", {"fused": True})):
+        optimizer = torch.optim.Adam(field.parameters(), lr=1e-2, betas=(0.9, 0.99), eps=1e-15, **options)
+        seconds[name] = time_calls(optimizer.step, args.repeats, device)[1]
+    return seconds
+
+
+def compiler_available(device: torch.device) -> bool:
+    if device.type == "cuda":
+        import importlib.util
+
+        return importlib.util.find_spec("triton") is not None
+    return any(shutil.which(name) for name in ("c++", "g++", "clang++"))
+
+
+def throughput(config: dict[str, int], args: argparse.Namespace, device: torch.device) -> list[dict]:
+    from pointfield.fields.hashgrid import HashEncoding, reference_hash_encoding
+    from pointfield.fields.nerf import RadianceMLP
+    from pointfield.fields.ngp import NGPField
+
+    generator = torch.Generator().manual_seed(0)
+    points = torch.rand(args.points, 3, generator=generator).to(device)
+    directions = torch.nn.functional.normalize(torch.randn(args.points, 3, generator=generator), dim=-1).to(device)
+    upstream = torch.randn(args.points, config["levels"] * config["features_per_level"], generator=generator).to(device)
+    rows = []
+    backends = ["eager"] if args.skip_compiled or not compiler_available(device) else ["compiled", "eager"]
+
+    def measure(name, calls):
+        forward, forward_backward = calls
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            first, median = time_calls(forward_backward, args.repeats, device)
+            _, forward_median = time_calls(forward, args.repeats, device)
+        fell_back = any("torch.compile of the hash encoding failed" in str(w.message) for w in caught)
+        rows.append({"implementation": name + (" (fell back to eager)" if fell_back else ""), "first_s": first,
+                     "median_s": median, "forward_s": forward_median, "samples_per_s": args.points / median})
+        print(f"  {rows[-1]['implementation']:<28} first {first:7.2f} s   median {median:8.4f} s   "
+              f"forward only {forward_median:8.4f} s", flush=True)
+
+    for backend in backends:
+        encoding = HashEncoding(**config, backend=backend).to(device)
+        measure(f"hash encoding, {backend}", encoding_calls(encoding, lambda e, x: e(x), points, upstream))
+    encoding = HashEncoding(**config, backend="eager").to(device)
+    measure("hash encoding, reference", encoding_calls(encoding, reference_hash_encoding, points, upstream))
+    measure("TinyNeRF MLP field", field_calls(RadianceMLP(depth=4, width=128, skips=(), color_width=64).to(device),
+                                              points, directions))
+    for backend in backends:
+        measure(f"NGPField, {backend}", field_calls(NGPField(**config, backend=backend).to(device), points, directions))
+    return rows
+
+
+def print_throughput(name: str, config: dict[str, int], rows: list[dict], points: int) -> None:
+    reference = next(r for r in rows if r["implementation"].startswith("hash encoding, reference"))
+    mlp = next(r for r in rows if r["implementation"] == "TinyNeRF MLP field")
+    print(f"\nthroughput, {name} ({describe(config)}), {points} samples; forward + backward unless said:")
+    print(f"{'implementation':<30} {'first s':>8} {'median s':>9} {'samples/s':>10} {'x reference':>12} "
+          f"{'x TinyNeRF MLP':>15} {'forward s':>10}")
+    for row in rows:
+        print(f"{row['implementation']:<30} {row['first_s']:8.2f} {row['median_s']:9.4f} {row['samples_per_s']:10.3g} "
+              f"{row['samples_per_s'] / reference['samples_per_s']:12.2f} "
+              f"{row['samples_per_s'] / mlp['samples_per_s']:15.2f} {row['forward_s']:10.4f}")
+
+
+# -- (b) memory -----------------------------------------------------------------------------------------
+
+
+def parameter_counts(config: dict[str, int]) -> dict[str, int]:
+    from pointfield.fields.ngp import InstantNGP
+
+    counts = {}
+    for unbounded in (False, True):
+        model = InstantNGP(BOX, unbounded=unbounded, backend="eager", **config)
+        counts["unbounded" if unbounded else "bounded"] = sum(p.numel() for p in model.parameters())
+        counts["hash table" if not unbounded else "proposal networks"] = (
+            model.field.encoding.table.numel() if not unbounded else sum(p.numel() for p in model.proposal.parameters())
+        )
+    return counts
+
+
+def proc_status_mb(field: str) -> float | None:
+    """``VmHWM`` (peak) or ``VmRSS`` (now) of /proc/self/status in MB; None off Linux."""
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1]) / 1024  # kB
+    except OSError:
+        pass
+    return None
+
+
+def peak_mb() -> float:
+    """This process's peak resident memory so far, MB.
+
+    Linux: ``VmHWM``, which starts afresh at ``exec`` -- unlike ``ru_maxrss``, which a subprocess
+    inherits from the parent it was forked from. Elsewhere ``ru_maxrss``.
+    """
+    peak = proc_status_mb("VmHWM")
+    if peak is not None:
+        return peak
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024  # macOS: bytes, others: KiB
+
+
+def memory_child(request: dict) -> dict:
+    """One configuration and image size, in this (fresh) process: see the module docstring (b)."""
+    import numpy as np
+
+    from pointfield.devices import pick_device
+    from pointfield.fields.ngp import InstantNGP
+    from pointfield.fields.train import RENDER_CHUNK, render_view, scene_rays
+    from pointfield.scenes import Frame, Scene
+    from pointfield.scenes.synthetic import synthetic_cameras
+
+    device = pick_device(request["device"])
+    size, views = request["size"], request["views"]
+    phases = {"python + torch": (peak_mb(), proc_status_mb("VmRSS"))}
+
+    def mark(phase):
+        synchronize(device)
+        phases[phase] = (peak_mb(), proc_status_mb("VmRSS"))
+        if device.type == "cuda":
+            phases[phase + " (cuda)"] = (torch.cuda.max_memory_allocated(device) / 2**20,
+                                         torch.cuda.memory_allocated(device) / 2**20)
+
+    torch.manual_seed(0)
+    model = InstantNGP(BOX, backend=request["backend"], **request["config"]).to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-2, betas=(0.9, 0.99), eps=1e-15)
+    mark("model")
+    blank = np.zeros((size, size, 4), np.uint8)  # one array shared by every frame: no pixel memory
+    cameras = synthetic_cameras(views + 1, size)
+    scene = Scene(cameras, [Frame(f"r_{i}", image=blank) for i in range(views + 1)],
+                  near_far=np.tile([2.0, 6.0], (views + 1, 1)))
+    rays = scene_rays(scene, range(views), device)
+    mark(f"rays of {views} views")
+    background = torch.ones(3, device=device)
+    samples = []
+    started = time.perf_counter()
+    for step in range(request["steps"]):  # as pointfield.fields.train.train's step()
+        generator = torch.Generator().manual_seed(step)
+        model.before_step(step, generator)
+        indices = torch.randint(len(rays), (model.rays_for_next_step(),), generator=generator).to(device)
+        rendered = model(rays.origins[indices], rays.directions[indices], rays.near[indices], rays.far[indices],
+                         background, jitter=True, generator=generator)[-1]
+        loss = torch.mean((rendered.color - rays.colors[indices]) ** 2)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        samples.append(model.last_samples)
+    training_seconds = time.perf_counter() - started
+    mark(f"{request['steps']} training steps")
+    view = scene_rays(scene, [views], device)
+    pixels = size * size
+    chunk_rows = size if request["render_chunks"] is None else max(1, request["render_chunks"] * RENDER_CHUNK // size)
+    first_row = max(0, size // 2 - chunk_rows // 2)
+    selected = slice(first_row * size, min(pixels, (first_row + chunk_rows) * size))
+    part = type(view)(*(getattr(view, name)[selected] for name in ("origins", "directions", "colors", "near", "far")))
+    started = time.perf_counter()
+    render_view(model, part, len(part) // size, size, background)
+    render_seconds = time.perf_counter() - started
+    mark(f"render {len(part)} of {pixels} pixels")
+    return {"phases_mb": phases, "samples_per_step": samples, "training_seconds": training_seconds,
+            "render_seconds": render_seconds, "rendered_pixels": len(part)}
+
+
+def memory(config: dict[str, int], size: int, args: argparse.Namespace) -> dict:
+    render_chunks = None if size <= 100 else args.render_chunks
+    request = {"config": config, "size": size, "views": TRAINING_VIEWS, "steps": args.memory_steps,
+               "render_chunks": render_chunks, "backend": args.memory_backend, "device": args.device}
+    completed = subprocess.run([sys.executable, __file__, "--memory-child", json.dumps(request)],
+                               capture_output=True, text=True, env=os.environ.copy())
+    if completed.returncode != 0:
+        raise SystemExit(f"memory measurement failed for {size}x{size}:\n{completed.stderr[-4000:]}")
+    return json.loads(completed.stdout.strip().splitlines()[-1])
+
+
+def print_memory(name: str, config: dict[str, int], counts: dict[str, int], size: int, result: dict,
+                 backend: str) -> None:
+    print(f"\nmemory, {name} ({describe(config)}), backend {backend}:")
+    print(f"  parameters: bounded {counts['bounded']:,} (hash table {counts['hash table']:,}), "
+          f"unbounded {counts['unbounded']:,} (+ proposal networks {counts['proposal networks']:,}); "
+          f"float32 parameters + gradients + Adam's two moments: {counts['bounded'] * 16 / 2**20:.0f} MB (bounded)")
+    phases = result["phases_mb"]
+    peak = max(value[0] for key, value in phases.items() if "cuda" not in key)
+    steps = ", ".join(f"{count:,}" for count in result["samples_per_step"])
+    print(f"  peak {peak / 1024:.2f} GB = {100 * peak / 1024 / TARGET_GB:.0f} % of {TARGET_GB:.0f} GB; "
+          f"samples per training step {steps} ({result['training_seconds']:.1f} s); "
+          f"rendered {result['rendered_pixels']:,} of {size * size:,} pixels in {result['render_seconds']:.1f} s")
+    print(f"      {'after':<44} {'peak MB':>9} {'now MB':>9}")
+    for phase, (highest, now) in phases.items():
+        print(f"      {phase:<44} {highest:9.0f} {now if now is not None else float('nan'):9.0f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--levels", type=int, help="lego configuration: levels (default: InstantNGP's)")
+    parser.add_argument("--features", type=int, help="lego configuration: features per level")
+    parser.add_argument("--log2-table", type=int, help="lego configuration: log2 of the table size")
+    parser.add_argument("--max-resolution", type=int, help="lego configuration: finest resolution")
+    parser.add_argument("--points", type=int, default=1 << 16, help="samples per forward + backward (default 65536)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed calls after the first (default 3)")
+    parser.add_argument("--skip-compiled", action="store_true", help="leave out the torch.compile backend")
+    parser.add_argument("--skip-throughput", action="store_true")
+    parser.add_argument("--skip-memory", action="store_true")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[100, 800], help="image sizes (default 100 800)")
+    parser.add_argument("--memory-steps", type=int, default=3, help="training steps per size (default 3)")
+    parser.add_argument("--render-chunks", type=int, default=1,
+                        help="chunks of an 800x800 view rendered (default 1; views up to 100x100: all)")
+    parser.add_argument("--memory-backend", default="eager", choices=("auto", "compiled", "eager"),
+                        help="hash-grid backend while measuring memory (default eager: no compiler in the peak)")
+    parser.add_argument("--device", default=None, help="auto (default), cpu, cuda, ...")
+    parser.add_argument("--memory-child", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.memory_child:
+        print(json.dumps(memory_child(json.loads(args.memory_child))))
+        return
+
+    from pointfield.devices import pick_device
+
+    device = pick_device(args.device)
+    print(f"device {device}, {torch.get_num_threads()} threads, torch {torch.__version__}", flush=True)
+    for name, config_for in configurations(args).items():
+        if not args.skip_throughput:
+            config = config_for(THROUGHPUT_SIZE)
+            print(f"\n{name}: timing ({describe(config)})", flush=True)
+            rows = throughput(config, args, device)
+            print_throughput(f"{name} at {THROUGHPUT_SIZE}x{THROUGHPUT_SIZE}", config, rows, args.points)
+            adam = adam_step_seconds(config, args, device)
+            print(f"one Adam step over the field's parameters (the whole table, every step): "
+                  f"{adam['default']:.4f} s; with fused=True {adam['fused']:.4f} s")
+        if not args.skip_memory:
+            for size in args.sizes:
+                config = config_for(size)
+                print(f"\n{name}: memory at {size}x{size} (subprocess; {describe(config)})", flush=True)
+                result = memory(config, size, args)
+                print_memory(f"{name} at {size}x{size}", config, parameter_counts(config), size, result,
+                             args.memory_backend)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,216 @@
+"""Lego at 100 x 100, every reconstruction in one run: time to quality and render time.
+
+The claims (issues 5, 6 and 7), all on NeRF-synthetic lego at 100 x 100 (``--downscale 8
+--holdout-every 10``, white background; views 0, 10, ..., 90 held out, 90 trained on):
+
+- TinyNeRF reaches 20 dB held-out PSNR (issue 5);
+- the hash-grid field (``--model ngp``) reaches 25 dB within 60 s of training and 31 dB within
+  300 s, its time to 20 dB is at most 0.15x TinyNeRF's, and it renders a held-out view in at
+  most a tenth of TinyNeRF's time (issue 6);
+- Gaussian splats reach 28 dB; their times to 25 and 28 dB are reported beside the hash
+  grid's (issue 7).
+
+Each model is trained by the function behind its command (``pointfield nerf train``,
+``pointfield splat train``), evaluated on all ten held-out views every ``--eval-every`` steps.
+*Training seconds* are the run's clock minus the time spent in those evaluations (recorded by
+the training loop as ``evaluation_seconds``), so frequent evaluation does not penalise a model.
+One-time start-up -- reading the scene, building rays, compiling the hash-grid kernels with
+``torch.compile`` (``InstantNGP.warm_up``; cached on disk after the first run) -- happens
+before the clock starts and is reported separately as ``startup_seconds``. A run stopped by its
+time limit between two evaluations contributes its final evaluation (metrics.json, all held-out
+views) as the last point of its curve. Render time is the median of ``--renders``
+renders of held-out view 0 by the trained model (no gradients), after one warm-up render.
+
+Run: ``make bench-lego`` (= ``python benchmarks/bench_lego.py``), or e.g.
+``--models ngp --ngp-seconds 60`` for one model. Results go to ``--out``/bench_lego.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+LEGO = Path(__file__).resolve().parents[2] / "shared" / "data" / "nerf" / "lego_blender"
+THRESHOLDS = (20.0, 25.0, 28.0, 31.0)
+SCENE = {"downscale": 8, "holdout_every": 10, "background": "white"}
+
+
+def training_curve(records: list[dict], final: dict) -> list[dict]:
+    """``[{"step", "training_seconds", "psnr"}]`` per evaluation, evaluation time taken out.
+
+    ``final`` is the run's metrics.json: the evaluation on all held-out views after the last
+    step, which is a point of the curve too when training stopped between two rounds (at the
+    time limit).
+    """
+    curve, evaluating = [], 0.0
+    for record in records:
+        evaluating += record.get("evaluation_seconds", 0.0)
+        if "psnr" in record:
+            curve.append({"step": record["step"], "training_seconds": round(record["seconds"] - evaluating, 2),
+                          "psnr": round(record["psnr"], 3)})
+    if not curve or final["steps"] > curve[-1]["step"]:
+        curve.append({"step": final["steps"], "training_seconds": round(final["seconds"] - evaluating, 2),
+                      "psnr": round(final["psnr"], 3)})
+    return curve
+
+
+def time_to(curve: list[dict], psnr: float) -> dict | None:
+    """The first evaluation at or above ``psnr``, or None."""
+    return next((point for point in curve if point["psnr"] >= psnr), None)
+
+
+def median_render_seconds(render, renders: int) -> float:
+    render()  # warm-up: caches, lazily built kernels
+    times = []
+    for _ in range(renders):
+        started = time.perf_counter()
+        render()
+        times.append(time.perf_counter() - started)
+    return statistics.median(times)
+
+
+def run_field(model: str, args, out: Path) -> dict:
+    from pointfield.fields import train as fields
+    from pointfield.training import RunDirectory
+
+    settings = {
+        "tiny": {"steps": args.tiny_steps, "max_time": args.tiny_seconds, "eval_every": args.tiny_eval_every},
+        "ngp": {"steps": args.ngp_steps, "max_time": args.ngp_seconds, "eval_every": args.ngp_eval_every},
+    }[model]
+    started = time.perf_counter()
+    metrics = fields.train(args.scene, model=model, out=out, steps=settings["steps"], max_time=settings["max_time"],
+                           eval_every=settings["eval_every"], eval_views=10, progress=False, **SCENE)
+    wall = time.perf_counter() - started
+    records = RunDirectory(out).read_metrics_log()
+    folder, config, network, device = fields.load_run(out)
+    scene = fields.open_scene_of(config)
+    _, heldout = fields.training_and_heldout(scene)
+    rays = fields.scene_rays(scene, heldout[:1], device)
+    height, width = int(scene.cameras.height[heldout[0]]), int(scene.cameras.width[heldout[0]])
+    background = torch.as_tensor(scene.background, device=device)
+    seconds = median_render_seconds(lambda: fields.render_view(network, rays, height, width, background), args.renders)
+    return _summary(model, metrics, records, wall, seconds, network)
+
+
+def run_splat(args, out: Path) -> dict:
+    from pointfield.splats import train as splats
+    from pointfield.training import RunDirectory
+
+    started = time.perf_counter()
+    metrics = splats.train(args.scene, out=out, steps=args.splat_steps, max_time=args.splat_seconds,
+                           eval_every=args.splat_eval_every, eval_views=10, progress=False,
+                           downscale=SCENE["downscale"], holdout_every=SCENE["holdout_every"])
+    wall = time.perf_counter() - started
+    records = RunDirectory(out).read_metrics_log()
+    from pointfield.fields.train import open_scene_of, training_and_heldout
+
+    config, gaussians, device = splats.load_run(out, "cpu")
+    scene = open_scene_of(config)
+    _, heldout = training_and_heldout(scene)
+    viewmats, Ks = splats.camera_matrices(scene.cameras[heldout[:1]], device)
+    background = torch.as_tensor(scene.background, dtype=torch.float32)
+    width, height = int(scene.cameras.width[heldout[0]]), int(scene.cameras.height[heldout[0]])
+
+    def render():
+        with torch.no_grad():
+            splats.render_views(gaussians, viewmats, Ks, width, height, background)
+
+    seconds = median_render_seconds(render, args.renders)
+    summary = _summary("splat", metrics, records, wall, seconds, None)
+    summary["splats"] = len(gaussians)
+    return summary
+
+
+def _summary(model, metrics, records, wall, render_seconds, network) -> dict:
+    curve = training_curve(records, metrics)
+    training_seconds = curve[-1]["training_seconds"]
+    return {
+        "model": model,
+        "final_psnr": round(metrics["psnr"], 3),
+        "final_ssim": round(metrics["ssim"], 4),
+        "steps": metrics["steps"],
+        "training_seconds": training_seconds,
+        "startup_seconds": round(wall - metrics["seconds"], 1),
+        "time_to": {f"{t:g} dB": time_to(curve, t) for t in THRESHOLDS},
+        "render_seconds": round(render_seconds, 4),
+        "parameters": None if network is None else sum(p.numel() for p in network.parameters()),
+        "curve": curve,
+    }
+
+
+def verdicts(results: dict) -> list[str]:
+    """The issues' claims, checked against this run's figures."""
+    lines = []
+
+    def seconds_to(model, psnr):
+        point = results.get(model, {}).get("time_to", {}).get(f"{psnr:g} dB")
+        return None if point is None else point["training_seconds"]
+
+    def claim(text, ok):
+        lines.append(f"{'ok  ' if ok else 'MISS'} {text}")
+
+    if "tiny" in results:
+        claim(f"TinyNeRF reaches 20 dB (final {results['tiny']['final_psnr']:.2f} dB)",
+              results["tiny"]["final_psnr"] >= 20 or seconds_to("tiny", 20) is not None)
+    if "ngp" in results:
+        t25, t31 = seconds_to("ngp", 25), seconds_to("ngp", 31)
+        claim(f"ngp reaches 25 dB within 60 s (at {t25} s)", t25 is not None and t25 <= 60)
+        claim(f"ngp reaches 31 dB within 300 s (at {t31} s)", t31 is not None and t31 <= 300)
+        if "tiny" in results:
+            t20, tiny20 = seconds_to("ngp", 20), seconds_to("tiny", 20)
+            ratio = None if t20 is None or tiny20 is None else t20 / tiny20
+            claim(f"ngp time to 20 dB <= 0.15x TinyNeRF's (ratio {ratio if ratio is None else round(ratio, 3)})",
+                  ratio is not None and ratio <= 0.15)
+            render_ratio = results["ngp"]["render_seconds"] / results["tiny"]["render_seconds"]
+            claim(f"ngp renders a view in <= 1/10 of TinyNeRF's time (ratio {render_ratio:.3f})", render_ratio <= 0.1)
+    if "splat" in results:
+        claim(f"splats reach 28 dB (final {results['splat']['final_psnr']:.2f} dB; "
+              f"25 dB at {seconds_to('splat', 25)} s, 28 dB at {seconds_to('splat', 28)} s)",
+              results["splat"]["final_psnr"] >= 28)
+        fps = 1 / results["splat"]["render_seconds"]
+        claim(f"splats render 100x100 at >= 20 fps ({fps:.1f} fps)", fps >= 20)
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", type=Path, default=LEGO, help=f"lego, Blender format (default {LEGO})")
+    parser.add_argument("--models", nargs="+", choices=("tiny", "ngp", "splat"), default=["ngp", "tiny", "splat"])
+    parser.add_argument("--out", type=Path, default=Path("bench-output/lego"), help="run folders and the JSON")
+    parser.add_argument("--ngp-seconds", type=float, default=300.0)
+    parser.add_argument("--ngp-eval-every", type=int, default=25)
+    parser.add_argument("--ngp-steps", type=int, default=1500,
+                        help="the learning rate decays over this many steps (default 1500, about 300 s here)")
+    parser.add_argument("--tiny-seconds", type=float, default=720.0,
+                        help="time limit of the TinyNeRF run, evaluations included (default 720)")
+    parser.add_argument("--tiny-steps", type=int, default=20_000)
+    parser.add_argument("--tiny-eval-every", type=int, default=100)
+    parser.add_argument("--splat-seconds", type=float, default=450.0)
+    parser.add_argument("--splat-steps", type=int, default=5000)
+    parser.add_argument("--splat-eval-every", type=int, default=100)
+    parser.add_argument("--renders", type=int, default=5, help="renders timed per model (median)")
+    parser.add_argument("--threads", type=int, help="torch.set_num_threads (default: PyTorch's choice)")
+    args = parser.parse_args()
+    if not (args.scene / "transforms_train.json").is_file():
+        raise SystemExit(f"lego scene not found at {args.scene}: this benchmark needs ../shared/data")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    args.out.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for model in args.models:
+        out = args.out / model
+        results[model] = run_splat(args, out) if model == "splat" else run_field(model, args, out)
+        brief = {k: v for k, v in results[model].items() if k != "curve"}
+        print(json.dumps(brief), flush=True)
+    report = {"threads": torch.get_num_threads(), "results": results, "verdicts": verdicts(results)}
+    (args.out / "bench_lego.json").write_text(json.dumps(report, indent=2) + "\n")
+    print("\n".join(report["verdicts"]))
+
+
+if __name__ == "__main__":
+    main()
