@@ -129,11 +129,14 @@ class NGPField(nn.Module):
         """Density ``sigma >= 0`` at ``(N, 3)`` unit-cube positions: ``(N,)``."""
         return self._density(self._trunk(unit_positions))
 
+    def color(self, trunk: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+        """RGB ``(N, 3)`` from the density MLP's output ``trunk`` ``(N, 16)`` and unit ``directions``."""
+        view = sh_basis(directions, DIRECTION_SH_DEGREE)
+        return torch.sigmoid(self.color_mlp(torch.cat([view, trunk[..., 1:]], dim=-1)))
+
     def forward(self, unit_positions: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         trunk = self._trunk(unit_positions)
-        view = sh_basis(directions, DIRECTION_SH_DEGREE)
-        rgb = torch.sigmoid(self.color_mlp(torch.cat([view, trunk[..., 1:]], dim=-1)))
-        return self._density(trunk), rgb
+        return self._density(trunk), self.color(trunk, directions)
 
 
 # -- where to look: boxes, the occupancy grid, marching ----------------------------------------------
@@ -304,8 +307,14 @@ def march_rays(
     stride = step_size * directions
     rays = torch.arange(origins.shape[0], device=origins.device).repeat_interleave(counts)
     k = torch.arange(rays.shape[0], device=origins.device) - (torch.cumsum(counts, 0) - counts).repeat_interleave(counts)
-    midpoints = first_mid.repeat_interleave(counts, dim=0) + k[:, None].to(origins.dtype) * stride.repeat_interleave(counts, dim=0)
-    keep = grid.occupied_at(midpoints)
+    # The occupancy test works in grid-cell units, where a midpoint's cell is its integer part;
+    # every candidate lies inside the box (it is between the ray's entry and exit), so clamping
+    # only absorbs rounding at the faces.
+    to_cells = grid.resolution / (grid.box[1] - grid.box[0])
+    first_cell = ((first_mid - grid.box[0]) * to_cells).repeat_interleave(counts, dim=0)
+    cells = first_cell.addcmul_(k[:, None].to(origins.dtype), (stride * to_cells).repeat_interleave(counts, dim=0))
+    cells = cells.clamp_(0, grid.resolution - 1e-3).long()
+    keep = grid.occupied[(cells[:, 0] * grid.resolution + cells[:, 1]) * grid.resolution + cells[:, 2]]
     rays, k = rays[keep], k[keep]
     t_starts = start[rays] + k * step_size
     t_ends = torch.minimum(t_starts + step_size, stop[rays])
@@ -531,10 +540,18 @@ class InstantNGP(nn.Module):
             # Early termination: a density-only pass without gradients finds where each ray has
             # become opaque; the samples behind cannot change the pixel and are dropped.
             with torch.no_grad():
-                sigmas = self.field.density(self.to_unit(samples.midpoints(origins, directions)))
+                trunk = self.field._trunk(self.to_unit(samples.midpoints(origins, directions)))
+                sigmas = self.field._density(trunk)
                 transmittance = packed_transmittance(sigmas * (samples.t_ends - samples.t_starts),
                                                      samples.ray_indices)
-            samples = samples.select(transmittance > EARLY_STOP_TRANSMITTANCE)
+            keep = transmittance > EARLY_STOP_TRANSMITTANCE
+            samples = samples.select(keep)
+            if not torch.is_grad_enabled():
+                # Rendering: the probe already ran the density MLP on the kept samples; only
+                # their colour is missing.
+                colors = self.field.color(trunk[keep], directions[samples.ray_indices])
+                rendered = composite_packed(sigmas[keep], colors, samples, origins.shape[0], background)
+                return rendered, len(samples), probed
         positions = self.to_unit(samples.midpoints(origins, directions))
         sigmas, colors = self.field(positions, directions[samples.ray_indices])
         return composite_packed(sigmas, colors, samples, origins.shape[0], background), len(samples), probed
