@@ -218,6 +218,7 @@ class _HashGridFunction(torch.autograd.Function):
         return None, grad_table, None, None, None, None
 
 
+RECOMPILE_LIMIT = 32
 _COMPILED: dict[str, object] = {}
 """Lazily built ``torch.compile(hash_encode)``, or ``False`` once compiling has failed."""
 
@@ -237,6 +238,14 @@ def _wants_compiled(backend: str, device: torch.device) -> bool:
 def _compiled_hash_encode(*arguments) -> torch.Tensor | None:
     """``hash_encode`` through ``torch.compile`` (dynamic sample count); None if that fails."""
     if "function" not in _COMPILED:
+        # One specialisation per (levels, features, dtype, grad mode): an unbounded model's
+        # field and proposal grids alone need six, past dynamo's default limit of 8 with a
+        # few more, after which it would silently run the rest eagerly.
+        import torch._dynamo.config as dynamo_config
+
+        for name in ("recompile_limit", "cache_size_limit"):
+            if hasattr(dynamo_config, name):
+                setattr(dynamo_config, name, max(getattr(dynamo_config, name), RECOMPILE_LIMIT))
         _COMPILED["function"] = torch.compile(hash_encode, dynamic=True)
     try:
         return _COMPILED["function"](*arguments)
