@@ -39,6 +39,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
@@ -606,7 +607,6 @@ def scene_bounds(scene, scene_box="auto") -> tuple[list[list[float]], bool]:
     always that last one -- the region of interest that the contraction leaves undistorted --
     since a capture's ``aabb`` (e.g. instant-ngp's ``aabb_scale``) encloses its background too.
     """
-    import numpy as np
 
     if not isinstance(scene_box, str):
         values = [float(v) for v in scene_box]
@@ -632,21 +632,15 @@ def scene_bounds(scene, scene_box="auto") -> tuple[list[list[float]], bool]:
 
 
 def _box_cameras_look_into(cameras, near_far=None):
-    import numpy as np
 
     centers = cameras.centers.double().numpy()
-    axes = cameras.rotations.double().numpy()[:, :, 2]  # OpenCV: the camera looks down its +z
-    # The point nearest to all optical axes: sum_i (I - a_i a_i^T) (p - c_i) = 0.
-    projectors = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
-    normal = projectors.sum(0)
-    singular = np.linalg.svd(normal, compute_uv=False)
-    if near_far is not None and singular[-1] < 0.05 * singular[0]:
-        # Nearly parallel axes (a forward-facing capture): the axes do not meet; look half-way
-        # between the median near and far bounds instead.
+    focus, pinned = cameras.axes_focus()
+    if not pinned and near_far is not None:
+        # Nearly parallel axes (a forward-facing capture): look half-way between the median
+        # near and far bounds ahead of the cameras instead.
+        axis = cameras.rotations[:, :, 2].double().numpy().mean(axis=0)
         middle = float(np.median(np.asarray(near_far, dtype=np.float64).mean(axis=1)))
-        focus = centers.mean(axis=0) + middle * axes.mean(axis=0) / np.linalg.norm(axes.mean(axis=0))
-    else:
-        focus = np.linalg.lstsq(normal, np.einsum("nij,nj->i", projectors, centers), rcond=None)[0]
+        focus = centers.mean(axis=0) + middle * axis / np.linalg.norm(axis)
     distance = np.median(np.linalg.norm(centers - focus, axis=1))
     half_fov = np.maximum(np.arctan(cameras.width.double().numpy() / (2 * cameras.fx.double().numpy())),
                           np.arctan(cameras.height.double().numpy() / (2 * cameras.fy.double().numpy())))

@@ -37,14 +37,9 @@ FRAMES_PER_SECOND = 20
 def scene_centre_and_up(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares point nearest every camera's optical axis, and the cameras' mean up vector."""
     rotations = scene.cameras.rotations.double().numpy()
-    centres = scene.cameras.centers.double().numpy()
-    axes = rotations[:, :, 2]  # OpenCV: +z looks forward
-    # Minimise sum_i |(I - a_i a_i^T)(p - c_i)|^2 over p.
-    projectors = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
-    try:
-        centre = np.linalg.solve(projectors.sum(0), np.einsum("nij,nj->i", projectors, centres))
-    except np.linalg.LinAlgError:  # all axes parallel: no single point to look at
-        centre = centres.mean(0) + axes.mean(0)
+    centre, pinned = scene.cameras.axes_focus()
+    if not pinned:  # (nearly) parallel axes: no single point to look at; one unit ahead
+        centre = scene.cameras.centers.double().numpy().mean(0) + rotations[:, :, 2].mean(0)
     up = -rotations[:, :, 1].mean(0)
     return centre, up / max(np.linalg.norm(up), 1e-12)
 

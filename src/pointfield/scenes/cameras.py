@@ -343,6 +343,23 @@ class Cameras:
         """Camera-to-world rotations ``(N, 3, 3)``; column k is camera axis k in the world."""
         return self.camera_to_world[:, :, :3]
 
+    def axes_focus(self) -> tuple[np.ndarray, bool]:
+        """The point nearest every camera's optical axis, float64 ``(3,)``, and whether the axes pin it down.
+
+        Least squares: minimises ``sum_i |(I - a_i a_i^T)(p - c_i)|^2`` over p, with ``c_i`` the
+        centres and ``a_i`` the viewing directions (+z, OpenCV). Nearly parallel axes -- a
+        forward-facing capture -- meet nowhere in particular: then the second value is False
+        (the normal matrix's smallest singular value is under 5 % of its largest) and the point,
+        the least-norm solution, should not be relied on.
+        """
+        centres = self.centers.double().cpu().numpy()
+        axes = self.rotations[:, :, 2].double().cpu().numpy()
+        projectors = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
+        normal = projectors.sum(0)
+        point = np.linalg.lstsq(normal, np.einsum("nij,nj->i", projectors, centres), rcond=None)[0]
+        singular = np.linalg.svd(normal, compute_uv=False)
+        return point, bool(singular[-1] >= 0.05 * singular[0])
+
     def world_to_camera(self) -> torch.Tensor:
         """World-to-camera view matrices ``(N, 4, 4)``, ``[R^T | -R^T C; 0 0 0 1]`` (gsplat's ``viewmats``)."""
         rotation_t = self.rotations.transpose(1, 2)
