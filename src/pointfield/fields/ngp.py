@@ -118,17 +118,19 @@ class NGPField(nn.Module):
             nn.Linear(hidden, 3),
         )
 
-    def _trunk(self, unit_positions: torch.Tensor) -> torch.Tensor:
+    def trunk(self, unit_positions: torch.Tensor) -> torch.Tensor:
+        """The density MLP's output ``(N, 16)``: density (before activation), then geometry features."""
         return self.density_mlp(self.encoding(unit_positions))
 
-    def _density(self, trunk: torch.Tensor) -> torch.Tensor:
+    def density_of(self, trunk: torch.Tensor) -> torch.Tensor:
+        """Density ``(N,)`` from :meth:`trunk`'s output."""
         # exp(x + offset): with the MLP's output near 0 at first, the offset sets the untrained
         # field's density (nerfacto's -1 for scenes scaled to about a unit ball).
         return trunc_exp(trunk[..., 0] + self.density_offset)
 
     def density(self, unit_positions: torch.Tensor) -> torch.Tensor:
         """Density ``sigma >= 0`` at ``(N, 3)`` unit-cube positions: ``(N,)``."""
-        return self._density(self._trunk(unit_positions))
+        return self.density_of(self.trunk(unit_positions))
 
     def color(self, trunk: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
         """RGB ``(N, 3)`` from the density MLP's output ``trunk`` ``(N, 16)`` and unit ``directions``."""
@@ -136,8 +138,8 @@ class NGPField(nn.Module):
         return torch.sigmoid(self.color_mlp(torch.cat([view, trunk[..., 1:]], dim=-1)))
 
     def forward(self, unit_positions: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        trunk = self._trunk(unit_positions)
-        return self._density(trunk), self.color(trunk, directions)
+        trunk = self.trunk(unit_positions)
+        return self.density_of(trunk), self.color(trunk, directions)
 
 
 # -- where to look: boxes, the occupancy grid, marching ----------------------------------------------
@@ -195,20 +197,22 @@ class OccupancyGrid(nn.Module):
         self.register_buffer("density", torch.zeros(cells))
         # Everything starts occupied: nothing is known to be empty before the first update.
         self.register_buffer("occupied", torch.ones(cells, dtype=torch.bool))
-        # The smallest box around the occupied cells: rays are marched only through it.
-        self.register_buffer("occupied_box", self.box.clone())
 
-    def cell_of(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Flat cell indices ``(...)`` of world ``positions`` ``(..., 3)`` and whether they are inside."""
-        unit = box_to_unit(positions, self.box)
-        inside = ((unit >= 0) & (unit < 1)).all(dim=-1)
-        cell = (unit * self.resolution).long().clamp(0, self.resolution - 1)
-        return (cell[..., 0] * self.resolution + cell[..., 1]) * self.resolution + cell[..., 2], inside
+    @property
+    def cells_per_unit(self) -> torch.Tensor:
+        """``(3,)`` cells per world unit along each axis: world offsets from ``box[0]`` times this are cell coordinates."""
+        return self.resolution / (self.box[1] - self.box[0])
 
     def occupied_at(self, positions: torch.Tensor) -> torch.Tensor:
-        """Boolean ``(...)``: the point lies inside the box in an occupied cell."""
-        cell, inside = self.cell_of(positions)
-        return self.occupied[cell] & inside
+        """Boolean ``(...)``: the world point ``(..., 3)`` lies inside the box in an occupied cell."""
+        cells = (positions - self.box[0]) * self.cells_per_unit
+        inside = ((cells >= 0) & (cells < self.resolution)).all(dim=-1)
+        return self.occupied_in_cells(cells) & inside
+
+    def occupied_in_cells(self, cells: torch.Tensor) -> torch.Tensor:
+        """Occupancy at cell coordinates ``(..., 3)`` (a point's cell is their integer part; clamped onto the grid)."""
+        index = cells.clamp(0, self.resolution - 1e-3).long()
+        return self.occupied[(index[..., 0] * self.resolution + index[..., 1]) * self.resolution + index[..., 2]]
 
     @torch.no_grad()
     def update(self, density_at, step: int, step_size: float, generator: torch.Generator | None = None,
@@ -236,18 +240,7 @@ class OccupancyGrid(nn.Module):
         self.density[chosen] = torch.maximum(self.density[chosen] * self.decay, fresh)
         threshold = -math.log1p(-self.occupancy_alpha) / step_size
         self.occupied.copy_(self.density > min(threshold, float(self.density.mean())))
-        self.occupied_box.copy_(self._box_around_occupied())
         return True
-
-    def _box_around_occupied(self) -> torch.Tensor:
-        """World ``(2, 3)`` box of the occupied cells (a point at the box's corner if none is)."""
-        cells = self.occupied.nonzero()[:, 0]
-        if len(cells) == 0:
-            return self.box[:1].expand(2, 3).clone()
-        index = torch.stack([cells // self.resolution**2, (cells // self.resolution) % self.resolution,
-                             cells % self.resolution], dim=-1)
-        size = (self.box[1] - self.box[0]) / self.resolution
-        return torch.stack([self.box[0] + index.amin(0) * size, self.box[0] + (index.amax(0) + 1) * size])
 
     @property
     def occupancy(self) -> float:
@@ -290,14 +283,13 @@ def march_rays(
 ) -> PackedSamples:
     """Fixed-size steps through the grid's box, keeping those whose midpoint is in an occupied cell.
 
-    Each ray is marched over ``[max(near, entry), min(far, exit))`` of the box around the
-    grid's occupied cells (all of its box before the first update) in steps of
+    Each ray is marched over ``[max(near, box entry), min(far, box exit))`` in steps of
     ``step_size`` (the first step shifted by ``u step_size``, ``u ~ U[0, 1)`` per ray, when
     ``jitter``, so that training sees every depth). Candidates are generated packed -- ray r gets
     ``ceil(length_r / step_size)`` of them -- so rays that miss the box or cross a corner of it
     cost nothing or little, and then compacted with the occupancy mask.
     """
-    enter, leave = ray_box_intersection(origins, directions, grid.occupied_box)
+    enter, leave = ray_box_intersection(origins, directions, grid.box)
     start, stop = torch.maximum(enter, near), torch.minimum(leave, far)
     counts = torch.ceil((stop - start).clamp_min(0) / step_size).long()
     if jitter:
@@ -308,14 +300,12 @@ def march_rays(
     stride = step_size * directions
     rays = torch.arange(origins.shape[0], device=origins.device).repeat_interleave(counts)
     k = torch.arange(rays.shape[0], device=origins.device) - (torch.cumsum(counts, 0) - counts).repeat_interleave(counts)
-    # The occupancy test works in grid-cell units, where a midpoint's cell is its integer part;
-    # every candidate lies inside the box (it is between the ray's entry and exit), so clamping
-    # only absorbs rounding at the faces.
-    to_cells = grid.resolution / (grid.box[1] - grid.box[0])
-    first_cell = ((first_mid - grid.box[0]) * to_cells).repeat_interleave(counts, dim=0)
-    cells = first_cell.addcmul_(k[:, None].to(origins.dtype), (stride * to_cells).repeat_interleave(counts, dim=0))
-    cells = cells.clamp_(0, grid.resolution - 1e-3).long()
-    keep = grid.occupied[(cells[:, 0] * grid.resolution + cells[:, 1]) * grid.resolution + cells[:, 2]]
+    # Tested in cell coordinates, without an inside test: every candidate lies between the ray's
+    # entry and exit, and the grid's clamp only absorbs rounding at the faces.
+    to_cells = grid.cells_per_unit
+    cells = ((first_mid - grid.box[0]) * to_cells).repeat_interleave(counts, dim=0)
+    cells.addcmul_(k[:, None].to(origins.dtype), (stride * to_cells).repeat_interleave(counts, dim=0))
+    keep = grid.occupied_in_cells(cells)
     rays, k = rays[keep], k[keep]
     t_starts = start[rays] + k * step_size
     t_ends = torch.minimum(t_starts + step_size, stop[rays])
@@ -491,10 +481,7 @@ class InstantNGP(nn.Module):
         """Refresh the occupancy grid (bounded scenes) before training step ``step``."""
         self._step = int(step)
         if self.grid is not None:
-            was_training = self.training
-            self.eval()
             self.grid.update(self.density_at, step, self.step_size, generator)
-            self.train(was_training)
 
     def rays_for_next_step(self, smallest: int = 256, largest: int = 1 << 14) -> int:
         """Rays for the next step so that it processes about ``target_samples`` samples."""
@@ -537,24 +524,20 @@ class InstantNGP(nn.Module):
     def _render_bounded(self, origins, directions, near, far, background, jitter, generator):
         samples = march_rays(origins, directions, near, far, self.grid, self.step_size, jitter, generator)
         probed = len(samples)
-        if len(samples):
-            # Early termination: a density-only pass without gradients finds where each ray has
-            # become opaque; the samples behind cannot change the pixel and are dropped.
-            with torch.no_grad():
-                trunk = self.field._trunk(self.to_unit(samples.midpoints(origins, directions)))
-                sigmas = self.field._density(trunk)
-                transmittance = packed_transmittance(sigmas * (samples.t_ends - samples.t_starts),
-                                                     samples.ray_indices)
-            keep = transmittance > EARLY_STOP_TRANSMITTANCE
-            samples = samples.select(keep)
-            if not torch.is_grad_enabled():
-                # Rendering: the probe already ran the density MLP on the kept samples; only
-                # their colour is missing.
-                colors = self.field.color(trunk[keep], directions[samples.ray_indices])
-                rendered = composite_packed(sigmas[keep], colors, samples, origins.shape[0], background)
-                return rendered, len(samples), probed
         positions = self.to_unit(samples.midpoints(origins, directions))
-        sigmas, colors = self.field(positions, directions[samples.ray_indices])
+        # Early termination: a density-only pass without gradients finds where each ray has
+        # become opaque; the samples behind cannot change the pixel and are dropped.
+        with torch.no_grad():
+            trunk = self.field.trunk(positions)
+            sigmas = self.field.density_of(trunk)
+            keep = packed_transmittance(sigmas * (samples.t_ends - samples.t_starts),
+                                        samples.ray_indices) > EARLY_STOP_TRANSMITTANCE
+        samples, positions = samples.select(keep), positions[keep]
+        view_directions = directions[samples.ray_indices]
+        if torch.is_grad_enabled():  # training: the kept samples again, now with gradients
+            sigmas, colors = self.field(positions, view_directions)
+        else:  # rendering: the probe's density and features serve; only colour is missing
+            sigmas, colors = sigmas[keep], self.field.color(trunk[keep], view_directions)
         return composite_packed(sigmas, colors, samples, origins.shape[0], background), len(samples), probed
 
     def _render_unbounded(self, origins, directions, near, far, background, jitter, generator):
