@@ -436,12 +436,7 @@ def composite_tiles(
         color_tiles = color_tiles.index_copy(0, filled, torch.cat(color_blocks))
         depth_tiles = depth_tiles.index_copy(0, filled, torch.cat(depth_blocks))
         alpha_tiles = alpha_tiles.index_copy(0, filled, torch.cat(alpha_blocks))
-    if background is not None:
-        color_tiles = color_tiles + (1 - alpha_tiles)[..., None] * background
-    image = _untile(color_tiles, tiles_x, tiles_y, tile_size, channels)[:height, :width]
-    depth = _untile(depth_tiles[..., None], tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
-    alpha = _untile(alpha_tiles[..., None], tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
-    return image, depth, alpha
+    return _images(color_tiles, depth_tiles[..., None], alpha_tiles[..., None], background, tiles_x, width, height)
 
 
 def composite_tiles_no_grad(
@@ -535,13 +530,7 @@ def composite_tiles_no_grad(
             if len(live) == 0:
                 break
 
-    color_tiles, depth_tiles, alpha_tiles = sums.split([channels, 1, 1], dim=-1)
-    if background is not None:
-        color_tiles = color_tiles + (1 - alpha_tiles) * background
-    image = _untile(color_tiles, tiles_x, tiles_y, tile_size, channels)[:height, :width]
-    depth = _untile(depth_tiles, tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
-    alpha = _untile(alpha_tiles, tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
-    return image, depth, alpha
+    return _images(*sums.split([channels, 1, 1], dim=-1), background, tiles_x, width, height)
 
 
 def _tile_batches(
@@ -565,6 +554,22 @@ def _tile_batches(
             end += 1
         yield tile_order[start:end], lengths[end - 1]
         start = end
+
+
+def _images(
+    color_tiles: torch.Tensor, depth_tiles: torch.Tensor, alpha_tiles: torch.Tensor, background: torch.Tensor | None,
+    tiles_x: int, width: int, height: int,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per-tile sums ``(tiles, S * S, D)``, ``(tiles, S * S, 1)`` x 2 -> colour over the background,
+    depth and alpha images ``(H, W, D)``, ``(H, W)``, ``(H, W)``."""
+    tile_size = math.isqrt(color_tiles.shape[1])
+    tiles_y = color_tiles.shape[0] // tiles_x
+    if background is not None:
+        color_tiles = color_tiles + (1 - alpha_tiles) * background
+    image = _untile(color_tiles, tiles_x, tiles_y, tile_size, color_tiles.shape[-1])[:height, :width]
+    depth = _untile(depth_tiles, tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
+    alpha = _untile(alpha_tiles, tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
+    return image, depth, alpha
 
 
 def _untile(values: torch.Tensor, tiles_x: int, tiles_y: int, tile_size: int, channels: int) -> torch.Tensor:
