@@ -339,6 +339,20 @@ def test_early_termination_does_not_change_the_render(monkeypatch):
     torch.testing.assert_close(early.depth[hit], full.depth[hit], atol=1e-3, rtol=1e-3)
 
 
+def test_a_render_reusing_the_probe_pass_equals_one_that_evaluates_the_field_again():
+    # Without gradients the kept samples' density and features come from the early-termination
+    # probe; with them, the field runs again on those samples. The pixels must not differ.
+    model = _opaque_model()
+    origins, directions, near, far = _rays_at_the_box(128, seed=6)
+    background = torch.tensor([0.3, 0.6, 0.9])
+    with torch.no_grad():
+        reused = model(origins, directions, near, far + 4, background)[0]
+    again = model(origins, directions, near, far + 4, background)[0]
+    assert again.color.requires_grad
+    for name in ("color", "opacity", "depth"):
+        torch.testing.assert_close(getattr(reused, name), getattr(again, name).detach(), atol=1e-5, rtol=1e-5)
+
+
 def test_the_ray_budget_adapts_so_that_a_step_processes_about_the_target_samples():
     model = _opaque_model().train()
     model.target_samples = 4096
