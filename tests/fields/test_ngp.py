@@ -10,6 +10,7 @@ import torch
 
 from pointfield.cli import main
 from pointfield.fields import ngp
+from pointfield.fields.compiling import compiler_available
 from pointfield.fields.ngp import (
     InstantNGP,
     OccupancyGrid,
@@ -159,11 +160,14 @@ def _rays_at_the_box(count, seed=0):
     return origins, directions, near, far
 
 
-def test_marching_keeps_exactly_the_steps_in_occupied_cells_within_near_far_and_the_box():
+@pytest.mark.parametrize("backend", ["eager", "compiled"])
+def test_marching_keeps_exactly_the_steps_in_occupied_cells_within_near_far_and_the_box(backend):
+    if backend == "compiled" and not compiler_available(torch.device("cpu")):
+        pytest.skip("no C++ compiler here for torch.compile")
     grid = _sphere_grid()
     origins, directions, near, far = _rays_at_the_box(40)
     step = 0.05
-    samples = march_rays(origins, directions, near, far, grid, step)
+    samples = march_rays(origins, directions, near, far, grid, step, backend=backend)
     enter, leave = ray_box_intersection(origins, directions, grid.box)
     start, stop = torch.maximum(enter, near), torch.minimum(leave, far)
     for ray in range(len(origins)):

@@ -40,14 +40,13 @@ writes per point. benchmarks/bench_hashgrid.py measures each implementation.
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 import math
-import shutil
-import warnings
 
 import torch
 from torch import nn
+
+from pointfield.fields.compiling import BACKENDS, CompiledOrEager
 
 PRIMES = (1, 2654435761, 805459861)
 """The paper's per-axis primes; the x prime is 1 for cache coherence along x."""
@@ -136,17 +135,13 @@ class HashEncoding(nn.Module):
         shape = positions.shape[:-1]
         flat = positions.reshape(-1, 3).to(self.table.dtype)
         arguments = (flat, self.table, self._resolution.to(self.table.dtype), self._primes, self._mask, self._offset)
-        features = None
-        if flat.shape[0] > 0 and _wants_compiled(self.backend, flat.device):
-            features = _compiled_hash_encode(*arguments)
-        if features is None and not (torch.is_grad_enabled() and self.table.requires_grad):
-            features = hash_encode(*arguments)  # nothing to keep for a backward that never comes
-        if features is None:
-            features = _HashGridFunction.apply(*arguments)
+        # Without a backward to come there is nothing to keep: the plain formula serves eagerly.
+        eager = _HashGridFunction.apply if torch.is_grad_enabled() and self.table.requires_grad else hash_encode
+        if flat.shape[0] == 0:
+            features = eager(*arguments)
+        else:
+            features = _FUSED_HASH_ENCODE(self.backend, flat.device, *arguments, eager=eager)
         return features.permute(1, 0, 2).reshape(*shape, self.output_dim)
-
-
-BACKENDS = ("auto", "compiled", "eager")
 
 
 def _corners(positions, resolution, primes, mask, offset):
@@ -218,42 +213,7 @@ class _HashGridFunction(torch.autograd.Function):
         return None, grad_table, None, None, None, None
 
 
-RECOMPILE_LIMIT = 32
-_COMPILED: dict[str, object] = {}
-"""Lazily built ``torch.compile(hash_encode)``, or ``False`` once compiling has failed."""
-
-
-def _wants_compiled(backend: str, device: torch.device) -> bool:
-    if backend == "eager" or _COMPILED.get("failed"):
-        return False
-    if backend == "compiled":
-        return True
-    if device.type == "cpu":
-        return any(shutil.which(name) for name in ("c++", "g++", "clang++"))
-    if device.type == "cuda":
-        return importlib.util.find_spec("triton") is not None
-    return False
-
-
-def _compiled_hash_encode(*arguments) -> torch.Tensor | None:
-    """``hash_encode`` through ``torch.compile`` (dynamic sample count); None if that fails."""
-    if "function" not in _COMPILED:
-        # One specialisation per (levels, features, dtype, grad mode): an unbounded model's
-        # field and proposal grids alone need six, past dynamo's default limit of 8 with a
-        # few more, after which it would silently run the rest eagerly.
-        import torch._dynamo.config as dynamo_config
-
-        for name in ("recompile_limit", "cache_size_limit"):
-            if hasattr(dynamo_config, name):
-                setattr(dynamo_config, name, max(getattr(dynamo_config, name), RECOMPILE_LIMIT))
-        _COMPILED["function"] = torch.compile(hash_encode, dynamic=True)
-    try:
-        return _COMPILED["function"](*arguments)
-    except Exception as error:  # noqa: BLE001 - any compiler failure means: run eagerly
-        _COMPILED["failed"] = True
-        warnings.warn(f"torch.compile of the hash encoding failed ({type(error).__name__}: {error}); "
-                      f"running it eagerly", RuntimeWarning, stacklevel=3)
-        return None
+_FUSED_HASH_ENCODE = CompiledOrEager(hash_encode, "the hash encoding")
 
 
 def reference_hash_encoding(encoding: HashEncoding, positions: torch.Tensor) -> torch.Tensor:

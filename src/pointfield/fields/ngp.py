@@ -44,6 +44,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from pointfield.fields.compiling import CompiledOrEager
 from pointfield.fields.hashgrid import HashEncoding
 from pointfield.fields.rendering import RenderedRays
 from pointfield.splats.sh import sh_basis
@@ -271,6 +272,32 @@ class PackedSamples:
         return origins[self.ray_indices] + t[:, None] * directions[self.ray_indices]
 
 
+def occupied_candidates(
+    first_cells: torch.Tensor,
+    stride_cells: torch.Tensor,
+    counts: torch.Tensor,
+    steps: torch.Tensor,
+    occupied: torch.Tensor,
+    resolution: int,
+) -> torch.Tensor:
+    """Boolean ``(R, K)``: candidate k of ray r exists (``k < counts[r]``) and lies in an occupied cell.
+
+    Candidate k of ray r sits at ``first_cells[r] + k stride_cells[r]`` in cell coordinates
+    (``(R, 3)`` each); ``steps`` is ``arange(K)``, K at least ``counts.max()``; ``occupied`` is
+    the flat ``resolution^3`` grid. No inside test: every candidate lies between its ray's
+    entry and exit, and the clamp only absorbs rounding at the faces. Rays are laid out
+    densely, ``(R, K)``, rather than packed: broadcasting then replaces the per-candidate
+    gathers of ray data, and the whole test is one expression that ``torch.compile`` fuses.
+    """
+    cells = torch.addcmul(first_cells[:, None, :], steps[None, :, None].to(first_cells.dtype), stride_cells[:, None, :])
+    index = cells.clamp(0, resolution - 1e-3).long()
+    flat = (index[..., 0] * resolution + index[..., 1]) * resolution + index[..., 2]
+    return occupied[flat] & (steps[None, :] < counts[:, None])
+
+
+_FUSED_OCCUPIED_CANDIDATES = CompiledOrEager(occupied_candidates, "the ray marcher's occupancy test")
+
+
 def march_rays(
     origins: torch.Tensor,
     directions: torch.Tensor,
@@ -280,33 +307,33 @@ def march_rays(
     step_size: float,
     jitter: bool = False,
     generator: torch.Generator | None = None,
+    backend: str = "auto",
 ) -> PackedSamples:
     """Fixed-size steps through the grid's box, keeping those whose midpoint is in an occupied cell.
 
     Each ray is marched over ``[max(near, box entry), min(far, box exit))`` in steps of
     ``step_size`` (the first step shifted by ``u step_size``, ``u ~ U[0, 1)`` per ray, when
-    ``jitter``, so that training sees every depth). Candidates are generated packed -- ray r gets
-    ``ceil(length_r / step_size)`` of them -- so rays that miss the box or cross a corner of it
-    cost nothing or little, and then compacted with the occupancy mask.
+    ``jitter``, so that training sees every depth): ray r has ``ceil(length_r / step_size)``
+    candidates, tested by :func:`occupied_candidates` and compacted to the occupied ones.
+    ``backend`` (:mod:`~pointfield.fields.compiling`) says whether that test is compiled.
     """
     enter, leave = ray_box_intersection(origins, directions, grid.box)
     start, stop = torch.maximum(enter, near), torch.minimum(leave, far)
     counts = torch.ceil((stop - start).clamp_min(0) / step_size).long()
+    longest = int(counts.max()) if counts.numel() else 0
+    if longest == 0:
+        empty = origins.new_zeros(0)
+        return PackedSamples(empty.long(), empty, empty)
     if jitter:
         start = start + torch.rand(origins.shape[0], generator=generator).to(origins.device) * step_size
-    # Candidate k of ray r has its midpoint at first_mid_r + k step d_r: two per-ray vectors to
-    # expand, rather than origins, directions and bounds gathered for every candidate.
-    first_mid = origins + (start + 0.5 * step_size)[:, None] * directions
-    stride = step_size * directions
-    rays = torch.arange(origins.shape[0], device=origins.device).repeat_interleave(counts)
-    k = torch.arange(rays.shape[0], device=origins.device) - (torch.cumsum(counts, 0) - counts).repeat_interleave(counts)
-    # Tested in cell coordinates, without an inside test: every candidate lies between the ray's
-    # entry and exit, and the grid's clamp only absorbs rounding at the faces.
     to_cells = grid.cells_per_unit
-    cells = ((first_mid - grid.box[0]) * to_cells).repeat_interleave(counts, dim=0)
-    cells.addcmul_(k[:, None].to(origins.dtype), (stride * to_cells).repeat_interleave(counts, dim=0))
-    keep = grid.occupied_in_cells(cells)
-    rays, k = rays[keep], k[keep]
+    first_cells = (origins + (start + 0.5 * step_size)[:, None] * directions - grid.box[0]) * to_cells
+    stride_cells = step_size * directions * to_cells
+    steps = torch.arange(longest, device=origins.device)
+    with torch.no_grad():  # a boolean test has no gradient; one grad mode means one compiled kernel
+        keep = _FUSED_OCCUPIED_CANDIDATES(backend, origins.device, first_cells, stride_cells, counts, steps,
+                                          grid.occupied, grid.resolution)
+    rays, k = keep.nonzero(as_tuple=True)
     t_starts = start[rays] + k * step_size
     t_ends = torch.minimum(t_starts + step_size, stop[rays])
     valid = t_ends > t_starts  # the jittered last step can fall past the exit
@@ -411,6 +438,7 @@ class InstantNGP(nn.Module):
             raise ValueError(f"scene box must have min < max on every axis, got {box.tolist()}")
         self.register_buffer("box", box.clone())
         self.unbounded = bool(unbounded)
+        self.backend = backend  # of the fused kernels: hash encodings and the marcher's occupancy test
         self.target_samples = int(target_samples)
         self.step_size = float(torch.linalg.norm(box[1] - box[0])) / float(steps_across_box)
         self.radius = 0.5 * float(torch.linalg.norm(box[1] - box[0]))  # of the ball the contraction keeps
@@ -459,9 +487,9 @@ class InstantNGP(nn.Module):
     def warm_up(self, samples: int = 4096) -> None:
         """Run every network once, with and without gradients, so lazily compiled kernels are built.
 
-        ``torch.compile`` builds the hash-grid kernels on first use (seconds, or tens of seconds
-        without a disk cache); doing it here keeps that one-time cost out of the training clock.
-        Leaves parameters and gradients as they were.
+        ``torch.compile`` builds the hash-grid kernels and the marcher's occupancy test on first
+        use (seconds, or tens of seconds without a disk cache); doing it here keeps that
+        one-time cost out of the training clock. Leaves parameters and gradients as they were.
         """
         device = self.box.device
         generator = torch.Generator().manual_seed(0)
@@ -475,6 +503,10 @@ class InstantNGP(nn.Module):
             encoder(unit).sum().backward()
         with torch.no_grad():
             self.field(unit, directions)
+            if self.grid is not None:  # rays through the box's centre, from outside it
+                origins = self.box.mean(dim=0) - 2 * self.radius * directions
+                near, far = torch.zeros(samples, device=device), torch.full((samples,), 4 * self.radius, device=device)
+                march_rays(origins, directions, near, far, self.grid, self.step_size, backend=self.backend)
         self.zero_grad(set_to_none=True)
 
     def before_step(self, step: int, generator: torch.Generator | None = None) -> None:
@@ -522,7 +554,8 @@ class InstantNGP(nn.Module):
         return [rendered]
 
     def _render_bounded(self, origins, directions, near, far, background, jitter, generator):
-        samples = march_rays(origins, directions, near, far, self.grid, self.step_size, jitter, generator)
+        samples = march_rays(origins, directions, near, far, self.grid, self.step_size, jitter, generator,
+                             self.backend)
         probed = len(samples)
         positions = self.to_unit(samples.midpoints(origins, directions))
         # Early termination: a density-only pass without gradients finds where each ray has
