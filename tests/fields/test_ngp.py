@@ -10,7 +10,7 @@ import torch
 
 from pointfield.cli import main
 from pointfield.fields import ngp
-from pointfield.fields.compiling import compiler_available
+from pointfield.compiling import compiler_available
 from pointfield.fields.ngp import (
     InstantNGP,
     OccupancyGrid,

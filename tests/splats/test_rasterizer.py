@@ -6,11 +6,13 @@ require gradients) and the in-place one used whenever no gradient can flow.
 
 import contextlib
 import math
+import warnings
 
 import numpy as np
 import pytest
 import torch
 
+from pointfield.compiling import compiler_available
 from pointfield.splats.gaussians import Gaussians
 from pointfield.splats.ply import read_splats
 from pointfield.splats.rasterizer import (
@@ -22,7 +24,8 @@ from pointfield.splats.rasterizer import (
 )
 from pointfield.splats.reference import rasterization_reference
 
-PATHS = ["differentiable", "no_grad"]
+PATHS = ["differentiable", "no_grad", "no_grad_eager"]
+"""Compositing paths: with gradients; without, compiled where a compiler exists; without, eagerly."""
 
 
 def tiny_scene(count: int, seed: int, spread: float = 0.6):
@@ -54,7 +57,9 @@ def render(path: str, splats, *args, **kwargs):
     """``rasterization`` through one compositing path: inputs requiring gradients, or none."""
     if path == "differentiable":
         splats = [tensor.detach().requires_grad_() for tensor in splats]
-    with torch.no_grad() if path == "no_grad" else contextlib.nullcontext():
+    if path == "no_grad_eager":
+        kwargs["backend"] = "eager"
+    with torch.no_grad() if path.startswith("no_grad") else contextlib.nullcontext():
         return rasterization(*splats, *args, **kwargs)
 
 
@@ -241,16 +246,21 @@ def needles_and_blobs(seed: int):
     return means, quats, scales, opacities
 
 
+@pytest.mark.parametrize("backend", ["eager", "compiled"])
 @pytest.mark.parametrize("tile_size", [1, 3, 4, 16])
-def test_tile_binning_finds_every_pixel_a_splat_reaches(tile_size):
+def test_tile_binning_finds_every_pixel_a_splat_reaches(tile_size, backend):
+    if backend == "compiled" and not compiler_available(torch.device("cpu")):
+        pytest.skip("no C++ compiler here for torch.compile")
     means, quats, scales, opacities = needles_and_blobs(tile_size)
     viewmats, Ks = cameras(1)
     width, height = 41, 35  # neither a multiple of the tile size
     projection = project_gaussians(means, quats, scales, viewmats[0], Ks[0], width, height)
-    splat_ids, tile_ids = tile_intersections(
-        projection.means2d, projection.conics, opacities, projection.depths, projection.visible,
-        width, height, tile_size,
-    )
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message="torch.compile of")  # no silent fallback to eager
+        splat_ids, tile_ids = tile_intersections(
+            projection.means2d, projection.conics, opacities, projection.depths, projection.visible,
+            width, height, tile_size, backend,
+        )
     # Every (pixel, splat) that step 5 keeps, found by testing every pixel.
     v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64) + 0.5,
                           torch.arange(width, dtype=torch.float64) + 0.5, indexing="ij")

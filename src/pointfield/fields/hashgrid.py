@@ -46,7 +46,7 @@ import math
 import torch
 from torch import nn
 
-from pointfield.fields.compiling import BACKENDS, CompiledOrEager
+from pointfield.compiling import BACKENDS, CompiledOrEager
 
 PRIMES = (1, 2654435761, 805459861)
 """The paper's per-axis primes; the x prime is 1 for cache coherence along x."""

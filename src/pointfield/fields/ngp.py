@@ -44,7 +44,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from pointfield.fields.compiling import CompiledOrEager
+from pointfield.compiling import CompiledOrEager
 from pointfield.fields.hashgrid import HashEncoding
 from pointfield.fields.rendering import RenderedRays
 from pointfield.splats.sh import sh_basis
@@ -315,7 +315,7 @@ def march_rays(
     ``step_size`` (the first step shifted by ``u step_size``, ``u ~ U[0, 1)`` per ray, when
     ``jitter``, so that training sees every depth): ray r has ``ceil(length_r / step_size)``
     candidates, tested by :func:`occupied_candidates` and compacted to the occupied ones.
-    ``backend`` (:mod:`~pointfield.fields.compiling`) says whether that test is compiled.
+    ``backend`` (:mod:`~pointfield.compiling`) says whether that test is compiled.
     """
     enter, leave = ray_box_intersection(origins, directions, grid.box)
     start, stop = torch.maximum(enter, near), torch.minimum(leave, far)

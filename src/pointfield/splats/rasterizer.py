@@ -70,6 +70,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from pointfield.compiling import CompiledOrEager
 from pointfield.splats.gaussians import quaternion_to_rotation
 from pointfield.splats.sh import sh_to_rgb
 
@@ -159,6 +160,9 @@ def project_gaussians(
     return Projection(means2d, conics, z, torch.where(visible, radii, torch.zeros_like(radii)), visible)
 
 
+_FUSED_PROJECT = CompiledOrEager(project_gaussians, "the splat projection")
+
+
 def rasterization(
     means: torch.Tensor,
     quats: torch.Tensor,
@@ -175,8 +179,9 @@ def rasterization(
     near_plane: float = 0.01,
     far_plane: float = 1e10,
     tile_size: int = TILE_SIZE,
-    max_block_elements: int = 1 << 18,
+    max_block_elements: int | None = None,
     splats_per_slice: int = 64,
+    backend: str = "auto",
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
     """Render N Gaussians into C cameras; differentiable with respect to every tensor input.
 
@@ -191,11 +196,14 @@ def rasterization(
       ``colour + T_final * background`` (default: none, i.e. black);
     - ``tile_size``, ``max_block_elements``, ``splats_per_slice``: the tiles' width in pixels
       and the memory and early-termination granularity of the compositing (they change speed,
-      never the result).
+      never the result; ``max_block_elements`` defaults to 2^18 with gradients, whose saved
+      blocks it bounds, and 2^20 without);
+    - ``backend``: whether rendering compiles its kernels (:mod:`pointfield.compiling`).
 
     Where no gradient can flow (under ``torch.no_grad()``, or when no input requires one), the
     compositing takes its in-place path, :func:`composite_tiles_no_grad`: the same images, to
-    rounding, several times faster.
+    rounding, several times faster; and the projection and the tile binning's per-splat
+    arithmetic run compiled where ``backend`` (:mod:`pointfield.compiling`) allows.
 
     Returns ``(colors (C, H, W, D), depths (C, H, W), alphas (C, H, W), meta)``. ``depths`` is
     the alpha-weighted sum of camera z (divide by ``alphas`` for the expected depth). ``meta``
@@ -217,8 +225,13 @@ def rasterization(
     inputs = (means, quats, scales, opacities, colors, viewmats, Ks, backgrounds)
     differentiable = torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in inputs)
     camera_count = viewmats.shape[0]
+    # Compiled only for rendering: with gradients it would need compiled autograd as well.
+    fused = backend if not differentiable else "eager"
+    if max_block_elements is None:  # without autograd's saved blocks, bigger blocks cost no memory
+        max_block_elements = 1 << 18 if differentiable else 1 << 20
     projections = [
-        project_gaussians(means, quats, scales, viewmats[i], Ks[i], width, height, near_plane, far_plane)
+        _FUSED_PROJECT(fused, means.device, means, quats, scales, viewmats[i], Ks[i], width, height,
+                       near_plane, far_plane)
         for i in range(camera_count)
     ]
     # One (C, N, 2) tensor that the compositing reads from, so its .grad is the screen-space
@@ -239,7 +252,7 @@ def rasterization(
         image, depth, alpha = composite(
             means2d[i], projection.conics, opacities, view_colors, projection.depths,
             projection.visible, width, height, background, tile_size, max_block_elements,
-            splats_per_slice,
+            splats_per_slice, backend,
         )
         images.append(image)
         depth_images.append(depth)
@@ -267,7 +280,7 @@ def splat_reach(opacities: torch.Tensor) -> torch.Tensor:
 
 def tile_intersections(
     means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor, depths: torch.Tensor,
-    visible: torch.Tensor, width: int, height: int, tile_size: int = TILE_SIZE,
+    visible: torch.Tensor, width: int, height: int, tile_size: int = TILE_SIZE, backend: str = "auto",
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Steps 2 to 4: the (splat, tile) pairs where the splat reaches a pixel, sorted by tile then depth.
 
@@ -279,7 +292,9 @@ def tile_intersections(
     band of pixel-centre rows is the right end at ``dy_r`` clamped into the band, and the left
     end likewise: a pair is made exactly when the ellipse meets a tile's pixel centres' box.
 
-    Returns ``(splat_ids (P,), tile_ids (P,))`` int64, ``tile_id = ty * tiles_x + tx``.
+    Returns ``(splat_ids (P,), tile_ids (P,))`` int64, ``tile_id = ty * tiles_x + tx``. The
+    per-splat and per-band arithmetic (:func:`_bands`, :func:`_tile_spans`) is compiled where
+    ``backend`` (:mod:`pointfield.compiling`) allows.
     """
     device = means2d.device
     tiles_x = math.ceil(width / tile_size)
@@ -289,20 +304,41 @@ def tile_intersections(
     ids = ids.index_select(0, torch.argsort(depths.detach().index_select(0, ids), stable=True))
     # float64: for long thin splats AC - B^2 cancels badly in float32.
     mean_x, mean_y, a, b, c = _gather([*means2d.detach().T, *conics.detach().T], ids, _precise(device))
-    reach = reach.index_select(0, ids)
+    with torch.no_grad():  # integer bounds: nothing to differentiate, one compiled kernel per dtype
+        row_first, row_last, band_first, bands, *ellipse = _FUSED_BANDS(
+            backend, device, mean_y, a, b, c, reach.index_select(0, ids), height, tile_size)
+        band_owner, band_row = _ranges(band_first, bands)
+        tile_first, tiles = _FUSED_TILE_SPANS(
+            backend, device, *_gather([mean_x, mean_y, *ellipse, row_first, row_last], band_owner), band_row,
+            width, tile_size)
+    pair_band, tile_ids = _ranges(band_row * tiles_x + tile_first, tiles)
+    # Narrow keys sort faster on a CPU: int16 several times, int32 twice as fast as int64.
+    key = torch.int16 if tiles_x * math.ceil(height / tile_size) <= torch.iinfo(torch.int16).max else torch.int32
+    tile_ids, order = torch.sort(tile_ids.to(key), stable=True)
+    return ids.index_select(0, band_owner).index_select(0, pair_band.index_select(0, order)), tile_ids.long()
+
+
+def _bands(mean_y, a, b, c, reach, height: int, tile_size: int):
+    """Per splat (conic ``(a, b, c)``, reach t): its pixel rows, its rows of tiles, and the ellipse's shape.
+
+    Returns ``row_first, row_last`` (pixel rows whose centres lie within the ellipse's y-extent),
+    ``band_first, bands`` (the first row of tiles and how many), then ``slope = b / a``,
+    ``width_at_centre = 2t / a``, ``narrowing = (ac - b^2) / a^2`` and ``right_dy`` (the ``dy_r``
+    of :func:`tile_intersections`).
+    """
     determinant = a * c - b * b
     reach_y = torch.sqrt(2 * reach * a / determinant)  # sqrt(2t Sigma_yy)
     right_dy = -b * torch.sqrt(2 * reach / (c * determinant))  # Sigma_xy sqrt(2t / Sigma_xx)
-    # Pixel rows whose centres (v + 0.5) lie within the ellipse's y-extent, and their tile rows.
     row_first = torch.clamp(torch.ceil(mean_y - reach_y - 0.5), 0, height).long()
     row_last = torch.clamp(torch.floor(mean_y + reach_y - 0.5), -1, height - 1).long()
-    band_first = row_first // tile_size
-    bands = torch.where(row_first <= row_last, row_last // tile_size - band_first + 1, 0)
-    band_owner, band_row = _ranges(band_first, bands)
-    mean_x, mean_y, slope, width_at_centre, narrowing, right_dy = _gather(
-        [mean_x, mean_y, b / a, 2 * reach / a, determinant / (a * a), right_dy], band_owner,
-    )
-    row_first, row_last = _gather([row_first, row_last], band_owner)
+    band_first = torch.div(row_first, tile_size, rounding_mode="floor")
+    bands = torch.where(row_first <= row_last, torch.div(row_last, tile_size, rounding_mode="floor") - band_first + 1, 0)
+    return row_first, row_last, band_first, bands, b / a, 2 * reach / a, determinant / (a * a), right_dy
+
+
+def _tile_spans(mean_x, mean_y, slope, width_at_centre, narrowing, right_dy, row_first, row_last, band_row,
+                width: int, tile_size: int):
+    """Per (splat, row of tiles) band: the first tile column the ellipse meets there, and how many."""
     # The band's pixel-centre rows, as offsets dy from the mean.
     dy_low = torch.maximum(row_first, band_row * tile_size) + (0.5 - mean_y)
     dy_high = torch.minimum(row_last, band_row * tile_size + (tile_size - 1)) + (0.5 - mean_y)
@@ -312,13 +348,14 @@ def tile_intersections(
     x_low = mean_x - slope * dy_left - torch.sqrt(torch.clamp_min(width_at_centre - narrowing * dy_left**2, 0))
     column_first = torch.clamp(torch.ceil(x_low - 0.5), 0, width).long()
     column_last = torch.clamp(torch.floor(x_high - 0.5), -1, width - 1).long()
-    tile_first = column_first // tile_size
-    tiles = torch.where(column_first <= column_last, column_last // tile_size - tile_first + 1, 0)
-    pair_band, tile_ids = _ranges(band_row * tiles_x + tile_first, tiles)
-    # Narrow keys sort faster on a CPU: int16 several times, int32 twice as fast as int64.
-    key = torch.int16 if tiles_x * math.ceil(height / tile_size) <= torch.iinfo(torch.int16).max else torch.int32
-    tile_ids, order = torch.sort(tile_ids.to(key), stable=True)
-    return ids.index_select(0, band_owner).index_select(0, pair_band.index_select(0, order)), tile_ids.long()
+    tile_first = torch.div(column_first, tile_size, rounding_mode="floor")
+    tiles = torch.where(column_first <= column_last,
+                        torch.div(column_last, tile_size, rounding_mode="floor") - tile_first + 1, 0)
+    return tile_first, tiles
+
+
+_FUSED_BANDS = CompiledOrEager(_bands, "the splat binning")
+_FUSED_TILE_SPANS = CompiledOrEager(_tile_spans, "the splat binning")
 
 
 def _precise(device: torch.device) -> torch.dtype:
@@ -354,6 +391,7 @@ def composite_tiles(
     tile_size: int = TILE_SIZE,
     max_block_elements: int = 1 << 18,
     splats_per_slice: int = 64,
+    backend: str = "auto",
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Steps 2 to 5 for one camera, differentiably: ``(colors (H, W, D), depths (H, W), alphas (H, W))``.
 
@@ -367,7 +405,8 @@ def composite_tiles(
     channels = colors.shape[-1]
     pixels_per_tile = tile_size * tile_size
     tiles_x, tiles_y = math.ceil(width / tile_size), math.ceil(height / tile_size)
-    splat_ids, tile_ids = tile_intersections(means2d, conics, opacities, depths, visible, width, height, tile_size)
+    splat_ids, tile_ids = tile_intersections(means2d, conics, opacities, depths, visible, width, height, tile_size,
+                                             backend)
     per_tile = torch.bincount(tile_ids, minlength=tiles_x * tiles_y)
     tile_start = torch.cumsum(per_tile, 0) - per_tile
     offsets = torch.arange(tile_size, device=device, dtype=dtype) + 0.5  # pixel centres in a tile
@@ -450,8 +489,9 @@ def composite_tiles_no_grad(
     height: int,
     background: torch.Tensor | None = None,
     tile_size: int = TILE_SIZE,
-    max_block_elements: int = 1 << 18,
+    max_block_elements: int = 1 << 20,
     splats_per_slice: int = 64,
+    backend: str = "auto",
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`composite_tiles` where no gradient is wanted: the same images, computed in place.
 
@@ -467,7 +507,8 @@ def composite_tiles_no_grad(
     channels = colors.shape[-1]
     pixels_per_tile = tile_size * tile_size
     tiles_x, tiles_y = math.ceil(width / tile_size), math.ceil(height / tile_size)
-    splat_ids, tile_ids = tile_intersections(means2d, conics, opacities, depths, visible, width, height, tile_size)
+    splat_ids, tile_ids = tile_intersections(means2d, conics, opacities, depths, visible, width, height, tile_size,
+                                             backend)
     per_tile = torch.bincount(tile_ids, minlength=tiles_x * tiles_y)
     tile_start = torch.cumsum(per_tile, 0) - per_tile
     # One row per splat: mean (2), -conic / 2 with b doubled (3), opacity, then the values

@@ -253,6 +253,9 @@ def train(
         records = [{k: v for k, v in record.items() if k in plotted} for record in history]
         plot_training_curves(records, run.path / CURVES_PNG, title="Gaussian splats", x="step")
 
+    # The rasterizer's compiled kernels are built on first use (seconds): here, before the clock.
+    with torch.no_grad():
+        render_views(gaussians, viewmats[:1], Ks[:1], width, height, background_color)
     identity = {"task": TASK, "sh_degree": gaussians.sh_degree}
     state = fit(
         gaussians, optimizer, step, batches, rounds, run=run, identity=identity,

@@ -1,6 +1,7 @@
 """Fused kernels without a CUDA build: ``torch.compile`` where a compiler exists, eager otherwise.
 
-The fields' hot loops (the hash encoding, the occupancy test of ray marching) are written as
+The hot loops (the hash encoding and the occupancy test of ray marching of the radiance fields,
+the projection and compositing of the splat rasterizer) are written as
 plain tensor expressions. Eagerly, each operation is one pass over memory and leaves a
 temporary behind; ``torch.compile`` (Inductor) fuses the expression into one loop, which on a
 CPU is several times faster. It needs a C++ compiler (CPU) or Triton (CUDA) and compiles once
