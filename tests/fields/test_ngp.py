@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from pointfield.cli import main
-from pointfield.fields import ngp
 from pointfield.compiling import compiler_available
+from pointfield.fields import ngp
 from pointfield.fields.ngp import (
     InstantNGP,
     OccupancyGrid,
@@ -458,3 +458,27 @@ def test_unbounded_ngp_trains_a_few_steps_with_a_finite_interlevel_loss(tmp_path
     assert all(math.isfinite(r["train_auxiliary_loss"]) and r["train_auxiliary_loss"] >= 0 for r in records)
     assert json.loads((tmp_path / "run" / "config.json").read_text())["model_options"]["unbounded"] is True
     assert math.isfinite(metrics["psnr"])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("unbounded", [False, True])
+def test_the_fast_field_gives_the_same_renders_and_gradients_on_cuda_as_on_cpu(unbounded):
+    torch.manual_seed(0)
+    model = InstantNGP(UNIT_BOX, unbounded=unbounded, levels=4, log2_table_size=12, min_resolution=4,
+                       max_resolution=32, backend="eager")
+    with torch.no_grad():  # a field with structure, not the near-constant initial one
+        model.field.encoding.table.normal_(0, 0.5)
+    origins, directions, near, far = _rays_at_the_box(256, seed=3)
+    results = {}
+    for device in ("cpu", "cuda"):
+        copy = InstantNGP(UNIT_BOX, unbounded=unbounded, levels=4, log2_table_size=12, min_resolution=4,
+                          max_resolution=32, backend="eager").to(device)
+        copy.load_state_dict(model.state_dict())
+        copy.eval()  # the occupancy grid stays all occupied: the same samples on both devices
+        rays = [t.to(device) for t in (origins, directions, near, far)]
+        rendered = copy(*rays, background=torch.ones(3, device=device))[-1]
+        rendered.color.sum().backward()
+        results[device] = (rendered.color.detach().cpu(), rendered.opacity.detach().cpu(),
+                           copy.field.encoding.table.grad.cpu())
+    for name, on_cpu, on_cuda in zip(("colour", "opacity", "table gradient"), results["cpu"], results["cuda"]):
+        torch.testing.assert_close(on_cuda, on_cpu, atol=1e-4, rtol=1e-3, msg=name)

@@ -293,3 +293,18 @@ def test_both_paths_render_the_real_3dgs_file_alike_in_float32(shared_data):
     torch.testing.assert_close(without[0], with_grad[0].detach(), atol=1e-5, rtol=0)
     torch.testing.assert_close(without[2], with_grad[2].detach(), atol=1e-5, rtol=0)
     torch.testing.assert_close(without[1], with_grad[1].detach(), atol=1e-3, rtol=1e-5)  # depths ~ 300
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_renders_and_differentiates_like_the_cpu():
+    splats = [tensor.float() for tensor in tiny_scene(200, 21)]
+    viewmats, Ks = (tensor.float() for tensor in cameras())
+    results = {}
+    for device in ("cpu", "cuda"):
+        inputs = [tensor.to(device).requires_grad_() for tensor in splats]
+        colors, depths, alphas, _ = rasterization(*inputs, viewmats.to(device), Ks.to(device), 40, 35)
+        (colors.sum() + alphas.sum()).backward()
+        results[device] = [colors.detach().cpu(), depths.detach().cpu(), alphas.detach().cpu(),
+                           *(tensor.grad.cpu() for tensor in inputs)]
+    for on_cpu, on_cuda in zip(results["cpu"], results["cuda"]):
+        torch.testing.assert_close(on_cuda, on_cpu, atol=1e-4, rtol=1e-3)
