@@ -123,6 +123,10 @@ def test_commands_train_export_and_render(tiny_scene, tmp_path, capsys):
     assert (tmp_path / "orbit.gif").stat().st_size > 0
     assert main(["splat", "render", str(ply), "--out", str(tmp_path / "x.gif")]) == 1
     assert "pass --scene" in capsys.readouterr().err
+    if not torch.cuda.is_available():
+        assert main(["splat", "render", str(run), "--rasterizer", "gsplat", "--out", str(tmp_path / "g.gif")]) == 1
+        assert "cannot render with gsplat" in capsys.readouterr().err
+        assert not (tmp_path / "g.gif").exists()
 
 
 def test_a_colmap_scene_initialises_from_its_sparse_points(shared_data):

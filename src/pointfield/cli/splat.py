@@ -61,6 +61,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     render.add_argument("--frames", type=int, help="number of frames (default 60; dataset: every camera)")
     render.add_argument("--out", type=Path, default=Path("render.gif"), help="x.gif, x.mp4 or a folder (default render.gif)")
     render.add_argument("--device", help=DEVICE_HELP)
+    render.add_argument("--rasterizer", choices=("auto", "pointfield", "gsplat"), default="auto",
+                        help="pointfield, gsplat (needs gsplat and a CUDA device) or auto: gsplat where it "
+                             "can run (default)")
     render.set_defaults(run=run_render)
 
     export = verbs.add_parser("export", help="write a run's splats as a standard splat .ply")
@@ -91,8 +94,9 @@ def run_render(args: argparse.Namespace) -> int:
     from pointfield.splats.train import render
 
     result = render(args.source, scene=args.scene, downscale=args.downscale, path=args.path,
-                    frames=args.frames, out=args.out, device=args.device)
-    print(f"wrote {result['frames']} frames ({result['path']}, {result['splats']:,} splats) to {result['out']}")
+                    frames=args.frames, out=args.out, device=args.device, rasterizer=args.rasterizer)
+    print(f"wrote {result['frames']} frames ({result['path']}, {result['splats']:,} splats, "
+          f"{result['rasterizer']} rasterizer) to {result['out']}")
     return 0
 
 

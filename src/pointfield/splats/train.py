@@ -107,10 +107,17 @@ def camera_matrices(cameras: Cameras, device: torch.device) -> tuple[torch.Tenso
 
 def render_views(
     gaussians: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int,
-    background: torch.Tensor, sh_degree: int | None = None,
+    background: torch.Tensor, sh_degree: int | None = None, rasterizer: str = "pointfield",
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
-    """Render ``gaussians`` into cameras: ``(colors (C, H, W, 3), depths, alphas, meta)``."""
-    return rasterization(
+    """Render ``gaussians`` into cameras: ``(colors (C, H, W, 3), depths, alphas, meta)``.
+
+    ``rasterizer``: "pointfield" (:func:`~pointfield.splats.rasterizer.rasterization`), "gsplat"
+    or "auto" (:mod:`pointfield.splats.gsplat_backend`).
+    """
+    from pointfield.splats.gsplat_backend import choose_rasterizer, rasterization_gsplat
+
+    chosen = choose_rasterizer(rasterizer, gaussians.means.device)
+    return (rasterization_gsplat if chosen == "gsplat" else rasterization)(
         gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities,
         gaussians.sh_coefficients, viewmats, Ks, width, height,
         sh_degree=gaussians.active_sh_degree if sh_degree is None else sh_degree,
@@ -374,17 +381,20 @@ def render(
     frames: int | None = None,
     out: str | os.PathLike[str] = "render.gif",
     device: str | None = None,
+    rasterizer: str = "auto",
 ) -> dict[str, Any]:
     """Render a run folder or a splat ``.ply`` along a camera path into ``out``.
 
     ``path``: orbit, spiral or dataset (see :func:`pointfield.fields.views.path_cameras`).
     A run uses the scene it was trained on unless ``scene`` is given; a ``.ply`` needs
     ``scene`` for its cameras (at ``downscale``). ``out`` ending in ``.gif`` / ``.mp4`` gets a
-    video of colour | depth | alpha panels, anything else a folder of PNGs.
+    video of colour | depth | alpha panels, anything else a folder of PNGs. ``rasterizer``:
+    see :func:`render_views` (by default gsplat where it can run).
     """
     from pointfield.devices import pick_device
     from pointfield.fields.train import open_scene, open_scene_of
     from pointfield.fields.views import path_cameras, write_views
+    from pointfield.splats.gsplat_backend import choose_rasterizer
     from pointfield.splats.ply import read_splats
 
     source = Path(source)
@@ -402,6 +412,7 @@ def render(
         gaussians = read_splats(source).to(torch_device)
         scene_data = open_scene(scene, downscale)
         background = scene_data.background
+    chosen = choose_rasterizer(rasterizer, torch_device)  # before anything is rendered or written
     cameras = path_cameras(scene_data, path, frames)
     viewmats, Ks = camera_matrices(cameras, torch_device)
     background_color = torch.as_tensor(background, dtype=torch.float32, device=torch_device)
@@ -410,9 +421,10 @@ def render(
         for index in range(len(cameras)):
             width, height = int(cameras.width[index]), int(cameras.height[index])
             colors, depths, alphas, _ = render_views(
-                gaussians, viewmats[[index]], Ks[[index]], width, height, background_color,
+                gaussians, viewmats[[index]], Ks[[index]], width, height, background_color, rasterizer=chosen,
             )
             views.append(view_arrays(colors[0], depths[0], alphas[0]))
     near, far = depth_range(scene_data, views)
     write_views(views, out, near, far)
-    return {"out": str(out), "frames": len(views), "path": path, "splats": len(gaussians)}
+    return {"out": str(out), "frames": len(views), "path": path, "splats": len(gaussians),
+            "rasterizer": chosen}
