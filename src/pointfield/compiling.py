@@ -1,8 +1,7 @@
 """Fused kernels without a CUDA build: ``torch.compile`` where a compiler exists, eager otherwise.
 
-The hot loops (the hash encoding and the occupancy test of ray marching of the radiance fields,
-the projection and compositing of the splat rasterizer) are written as
-plain tensor expressions. Eagerly, each operation is one pass over memory and leaves a
+The hot loops (the hash encoding and the ray marcher's occupancy test of the radiance fields,
+the splat rasterizer's projection and tile binning) are written as plain tensor expressions. Eagerly, each operation is one pass over memory and leaves a
 temporary behind; ``torch.compile`` (Inductor) fuses the expression into one loop, which on a
 CPU is several times faster. It needs a C++ compiler (CPU) or Triton (CUDA) and compiles once
 per shape family (seconds, then cached on disk). Where neither exists, or compilation fails,
@@ -16,6 +15,7 @@ if compilation fails.
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import shutil
 import warnings
@@ -34,9 +34,14 @@ of 8 with a few more, after which it would silently run the rest eagerly."""
 
 def compiler_available(device: torch.device) -> bool:
     """Whether ``torch.compile`` can generate code for ``device`` here."""
-    if device.type == "cpu":
+    return _compiler_available_for(device.type)
+
+
+@functools.cache  # asked on every call of a hot loop; a PATH search costs ~30 us
+def _compiler_available_for(device_type: str) -> bool:
+    if device_type == "cpu":
         return any(shutil.which(name) for name in ("c++", "g++", "clang++"))
-    if device.type == "cuda":
+    if device_type == "cuda":
         return importlib.util.find_spec("triton") is not None
     return False
 
