@@ -208,12 +208,8 @@ class OccupancyGrid(nn.Module):
         """Boolean ``(...)``: the world point ``(..., 3)`` lies inside the box in an occupied cell."""
         cells = (positions - self.box[0]) * self.cells_per_unit
         inside = ((cells >= 0) & (cells < self.resolution)).all(dim=-1)
-        return self.occupied_in_cells(cells) & inside
+        return occupied_in_cells(self.occupied, self.resolution, cells) & inside
 
-    def occupied_in_cells(self, cells: torch.Tensor) -> torch.Tensor:
-        """Occupancy at cell coordinates ``(..., 3)`` (a point's cell is their integer part; clamped onto the grid)."""
-        index = cells.clamp(0, self.resolution - 1e-3).long()
-        return self.occupied[(index[..., 0] * self.resolution + index[..., 1]) * self.resolution + index[..., 2]]
 
     @torch.no_grad()
     def update(self, density_at, step: int, step_size: float, generator: torch.Generator | None = None,
@@ -272,6 +268,15 @@ class PackedSamples:
         return origins[self.ray_indices] + t[:, None] * directions[self.ray_indices]
 
 
+def occupied_in_cells(occupied: torch.Tensor, resolution: int, cells: torch.Tensor) -> torch.Tensor:
+    """The flat ``resolution^3`` grid ``occupied`` at cell coordinates ``(..., 3)``.
+
+    A point's cell is the integer part of its coordinates, clamped onto the grid.
+    """
+    index = cells.clamp(0, resolution - 1e-3).long()
+    return occupied[(index[..., 0] * resolution + index[..., 1]) * resolution + index[..., 2]]
+
+
 def occupied_candidates(
     first_cells: torch.Tensor,
     stride_cells: torch.Tensor,
@@ -290,9 +295,7 @@ def occupied_candidates(
     gathers of ray data, and the whole test is one expression that ``torch.compile`` fuses.
     """
     cells = torch.addcmul(first_cells[:, None, :], steps[None, :, None].to(first_cells.dtype), stride_cells[:, None, :])
-    index = cells.clamp(0, resolution - 1e-3).long()
-    flat = (index[..., 0] * resolution + index[..., 1]) * resolution + index[..., 2]
-    return occupied[flat] & (steps[None, :] < counts[:, None])
+    return occupied_in_cells(occupied, resolution, cells) & (steps[None, :] < counts[:, None])
 
 
 _FUSED_OCCUPIED_CANDIDATES = CompiledOrEager(occupied_candidates, "the ray marcher's occupancy test")
