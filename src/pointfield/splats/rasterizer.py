@@ -86,6 +86,10 @@ BOUND_SLACK = 1e-3
 # A sigma past 0.5 * SIGMA_EXTENT^2 (the pixel is dropped anyway) whose exp(-sigma) is far from
 # float32 underflow: exp() of denormal results is about a hundred times slower on x86.
 SIGMA_CEILING = 20.0
+# The compositing's blocks (tiles x L x pixels): with gradients autograd keeps several per
+# slice, so their size bounds training memory; without, larger blocks mean fewer iterations.
+BLOCK_ELEMENTS = 1 << 18
+BLOCK_ELEMENTS_NO_GRAD = 1 << 20
 
 
 @dataclass
@@ -196,8 +200,8 @@ def rasterization(
       ``colour + T_final * background`` (default: none, i.e. black);
     - ``tile_size``, ``max_block_elements``, ``splats_per_slice``: the tiles' width in pixels
       and the memory and early-termination granularity of the compositing (they change speed,
-      never the result; ``max_block_elements`` defaults to 2^18 with gradients, whose saved
-      blocks it bounds, and 2^20 without);
+      never the result; ``max_block_elements`` defaults to :data:`BLOCK_ELEMENTS` with
+      gradients and :data:`BLOCK_ELEMENTS_NO_GRAD` without);
     - ``backend``: whether rendering compiles its kernels (:mod:`pointfield.compiling`).
 
     Where no gradient can flow (under ``torch.no_grad()``, or when no input requires one), the
@@ -227,8 +231,8 @@ def rasterization(
     camera_count = viewmats.shape[0]
     # Compiled only for rendering: with gradients it would need compiled autograd as well.
     fused = backend if not differentiable else "eager"
-    if max_block_elements is None:  # without autograd's saved blocks, bigger blocks cost no memory
-        max_block_elements = 1 << 18 if differentiable else 1 << 20
+    if max_block_elements is None:
+        max_block_elements = BLOCK_ELEMENTS if differentiable else BLOCK_ELEMENTS_NO_GRAD
     projections = [
         _FUSED_PROJECT(fused, means.device, means, quats, scales, viewmats[i], Ks[i], width, height,
                        near_plane, far_plane)
@@ -389,7 +393,7 @@ def composite_tiles(
     height: int,
     background: torch.Tensor | None = None,
     tile_size: int = TILE_SIZE,
-    max_block_elements: int = 1 << 18,
+    max_block_elements: int = BLOCK_ELEMENTS,
     splats_per_slice: int = 64,
     backend: str = "auto",
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -489,7 +493,7 @@ def composite_tiles_no_grad(
     height: int,
     background: torch.Tensor | None = None,
     tile_size: int = TILE_SIZE,
-    max_block_elements: int = 1 << 20,
+    max_block_elements: int = BLOCK_ELEMENTS_NO_GRAD,
     splats_per_slice: int = 64,
     backend: str = "auto",
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
