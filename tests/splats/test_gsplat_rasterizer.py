@@ -1,10 +1,10 @@
-"""The optional gsplat backend: chosen only where it can run, and rendering what pointfield renders."""
+"""The optional gsplat rasterizer: chosen only where it can run, and rendering what pointfield renders."""
 
 import pytest
 import torch
 
 from pointfield.errors import PointfieldError
-from pointfield.splats.gsplat_backend import choose_rasterizer, gsplat_usable, rasterization_gsplat
+from pointfield.splats.gsplat_rasterizer import choose_rasterizer, gsplat_usable, rasterization_gsplat
 from pointfield.splats.rasterizer import rasterization
 
 

@@ -1,4 +1,4 @@
-"""The optional gsplat backend: rendering through gsplat's CUDA kernels where they exist.
+"""The optional gsplat rasterizer: rendering through gsplat's CUDA kernels where they exist.
 
 pointfield's own rasterizer (:mod:`pointfield.splats.rasterizer`) runs everywhere. Where the
 ``gsplat`` package is installed (``pip install gsplat``; it builds its CUDA kernels on first

@@ -112,9 +112,9 @@ def render_views(
     """Render ``gaussians`` into cameras: ``(colors (C, H, W, 3), depths, alphas, meta)``.
 
     ``rasterizer``: "pointfield" (:func:`~pointfield.splats.rasterizer.rasterization`), "gsplat"
-    or "auto" (:mod:`pointfield.splats.gsplat_backend`).
+    or "auto" (:mod:`pointfield.splats.gsplat_rasterizer`).
     """
-    from pointfield.splats.gsplat_backend import choose_rasterizer, rasterization_gsplat
+    from pointfield.splats.gsplat_rasterizer import choose_rasterizer, rasterization_gsplat
 
     chosen = choose_rasterizer(rasterizer, gaussians.means.device)
     return (rasterization_gsplat if chosen == "gsplat" else rasterization)(
@@ -394,7 +394,7 @@ def render(
     from pointfield.devices import pick_device
     from pointfield.fields.train import open_scene, open_scene_of
     from pointfield.fields.views import path_cameras, write_views
-    from pointfield.splats.gsplat_backend import choose_rasterizer
+    from pointfield.splats.gsplat_rasterizer import choose_rasterizer
     from pointfield.splats.ply import read_splats
 
     source = Path(source)
