@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench bench-formats bench-fuzz bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-lego clean
+.PHONY: demo test bench bench-formats bench-fuzz bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,7 +27,7 @@ $(BIN)/.open3d: $(BIN)/.installed
 	$(BIN)/python -c "import open3d"
 	touch $@
 
-bench: bench-formats bench-fuzz bench-pointnet bench-hashgrid bench-splat-render bench-lego bench-nerf bench-splat
+bench: bench-formats bench-fuzz bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat
 
 bench-formats: $(BIN)/.open3d
 	$(BIN)/python benchmarks/bench_formats.py
@@ -49,6 +49,9 @@ bench-splat-render: $(BIN)/.installed
 
 bench-hashgrid: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_hashgrid.py
+
+bench-march: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_march.py
 
 # TinyNeRF, the hash-grid field and splats on lego in one run (about 45 minutes on 2 cores).
 bench-lego: $(BIN)/.installed

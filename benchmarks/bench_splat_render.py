@@ -15,7 +15,9 @@ one run and from the same cameras:
 The lego scenes are seen from lego's first camera at 100 x 100 (``--downscale 8``). For each
 scene it reports the render speed of :func:`pointfield.splats.rasterizer.rasterization` without
 gradients (what ``pointfield splat render`` and held-out evaluation run) -- the median wall time
-and the median CPU time of ``--frames`` renders after a warm-up -- the time of one training step
+and the median CPU time of ``--frames`` renders after a warm-up, and the same render with
+nothing compiled (``backend="eager"``, the peer of :mod:`pointfield.compiling`'s kernels) -- the
+time of one training step
 (the same render with gradients, then ``backward``), and the dense, per-splat reference
 rasterizer's time for ``--reference-frames`` renders: the peer the ratio is taken against. The
 largest difference between the fast image and the reference's shows they draw the same thing.
@@ -123,12 +125,19 @@ def measure(splats: list[torch.Tensor], viewmats: torch.Tensor, Ks: torch.Tensor
         colors, _, alphas, _ = rasterization(*parameters, *arguments, **options)
         (colors.sum() + alphas.sum()).backward()
 
+    def render_eager():  # the peer of the compiled kernels: the same render, nothing compiled
+        with torch.no_grad():
+            return rasterization(*splats, *arguments, **options, backend="eager")
+
     walls, cpus = timed(render, args.frames)
+    eager_walls, _ = timed(render_eager, args.frames)
     step_walls, step_cpus = timed(train_step, args.train_steps)
     result = {
         "splats": len(splats[0]),
         "render": {"median_seconds": statistics.median(walls), "fps": 1 / statistics.median(walls),
-                   "median_cpu_seconds": statistics.median(cpus), "cpu_fps": 1 / statistics.median(cpus)},
+                   "median_cpu_seconds": statistics.median(cpus), "cpu_fps": 1 / statistics.median(cpus),
+                   "eager_median_seconds": statistics.median(eager_walls),
+                   "compiled_speedup": statistics.median(eager_walls) / statistics.median(walls)},
         "train_step": {"median_seconds": statistics.median(step_walls),
                        "median_cpu_seconds": statistics.median(step_cpus)},
     }
