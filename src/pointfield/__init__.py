@@ -7,10 +7,9 @@ The two functions most people need first::
     pointfield.write("scan.ply", cloud)          # fields preserved, written atomically
 """
 
-__version__ = "0.1.0"
-
 from pointfield.clouds import Mesh, PointCloud, Records, read, write  # noqa: E402
 from pointfield.errors import FormatError, PointfieldError  # noqa: E402
+from pointfield.version import __version__  # noqa: E402
 
 __all__ = [
     "FormatError",
