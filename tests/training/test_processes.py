@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-import pointfield.classify
+import pointfield
 
 TIMEOUT = 240
 TINY = dict(shapes_per_class=4, points=64, epochs=2, batch_size=4, input_transform=False,

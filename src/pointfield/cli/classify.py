@@ -1,7 +1,7 @@
 """``pointfield classify train|eval|predict``: shape classification with the PointNet family.
 
 Each subcommand calls the function of the same name and arguments in
-:mod:`pointfield.classify` (``eval`` calls :func:`pointfield.classify.evaluate`). torch is
+:mod:`pointfield.clouds.tasks` with ``task="classify"`` (``eval`` calls ``evaluate``). torch is
 imported only when a subcommand runs, so other commands start fast.
 """
 
@@ -102,7 +102,8 @@ def add_eval_parser(verbs: argparse._SubParsersAction, task: str) -> None:
 
 
 def run_train(args: argparse.Namespace, task: str) -> int:
-    module = _module(task)
+    from pointfield.clouds import tasks
+
     options: dict[str, Any] = dict(
         model=args.model, epochs=args.epochs, batch_size=args.batch_size, points=args.points,
         out=args.out, device=args.device, seed=args.seed, resume=args.resume,
@@ -113,7 +114,7 @@ def run_train(args: argparse.Namespace, task: str) -> int:
     )
     if task == "segment":
         options["label_field"] = args.label_field
-    metrics = module.train(args.data, **options)
+    metrics = tasks.train(task, args.data, **options)
     if os.environ.get("RANK", "0") == "0":
         print(f"{task} run {args.out}: {_scores_line(metrics)} ({metrics['epochs']} epochs, "
               f"{metrics['seconds']:.0f} s); see {args.out / 'metrics.json'}")
@@ -121,8 +122,9 @@ def run_train(args: argparse.Namespace, task: str) -> int:
 
 
 def run_eval(args: argparse.Namespace, task: str) -> int:
-    metrics = _module(task).evaluate(args.run_dir, args.data, device=args.device,
-                                     on_error=args.on_error)
+    from pointfield.clouds import tasks
+
+    metrics = tasks.evaluate(task, args.run_dir, args.data, device=args.device, on_error=args.on_error)
     if args.json:
         print(json.dumps(metrics, indent=2))
         return 0
@@ -136,9 +138,9 @@ def run_eval(args: argparse.Namespace, task: str) -> int:
 
 
 def run_predict(args: argparse.Namespace) -> int:
-    from pointfield.classify import predict
+    from pointfield.clouds import tasks
 
-    answers = predict(args.run_dir, args.files, device=args.device)
+    answers = tasks.predict("classify", args.run_dir, args.files, device=args.device)
     if args.json:
         print(json.dumps(answers, indent=2))
     else:
@@ -153,11 +155,3 @@ def _scores_line(metrics: dict[str, Any]) -> str:
     if "miou" in metrics:
         parts.append(f"mIoU {metrics['miou']:.4f}")
     return ", ".join(parts)
-
-
-def _module(task: str):
-    if task == "classify":
-        import pointfield.classify as module
-    else:
-        import pointfield.segment as module
-    return module

@@ -1,10 +1,18 @@
 """Classification and segmentation of point clouds: what ``pointfield classify`` and
 ``pointfield segment`` do, as functions of a task name.
 
-:func:`train` opens the data (a folder, ModelNet, or the built-in synthetic shapes), builds a
-model from :mod:`pointfield.clouds.models`, and hands both to the training loop of
-:mod:`pointfield.training` with the two callables it needs (the batches of an epoch and the
-loss of a batch). :func:`evaluate` scores a finished run; :func:`predict` applies it to files.
+:func:`train` runs a :class:`CloudTask` through the one training lifecycle of
+:mod:`pointfield.training`: the task opens the data (a folder, ModelNet, or the built-in
+synthetic shapes), builds a model from :mod:`pointfield.clouds.models`, and gives the loop the
+batches of an epoch and the loss of a batch. A finished run opens as a :class:`CloudRun`
+(:func:`pointfield.load_run`), which evaluates and predicts; :func:`evaluate` and :func:`predict`
+are the command line's functions over it. ``pointfield.classify`` and ``pointfield.segment``
+are the same three functions with the task filled in::
+
+    import pointfield
+    metrics = pointfield.classify.train(model="pointnet", epochs=20, out="runs/shapes")
+    for answer in pointfield.classify.predict("runs/shapes", ["scan.ply"]):
+        print(answer["file"], answer["class"], answer["probability"])
 
 The recipe, the same for every model unless told otherwise:
 
@@ -26,10 +34,12 @@ the same file with its points shuffled get the same answer.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -58,8 +68,26 @@ from pointfield.clouds.transforms import (
     RandomShift,
     SamplePoints,
 )
+from pointfield.clouds.formats import read, write
+from pointfield.clouds.shapes import SyntheticShapes
+from pointfield.devices import pick_device
 from pointfield.errors import FormatError, PointfieldError
-from pointfield.metrics import accuracy, class_iou, confusion_matrix, mean_class_accuracy, mean_iou
+from pointfield.metrics import (
+    accuracy,
+    class_accuracies,
+    class_iou,
+    confusion_matrix,
+    mean_class_accuracy,
+    mean_iou,
+)
+from pointfield.training import lifecycle
+from pointfield.training.distributed import shard, wrap
+from pointfield.training.lifecycle import restore_model
+from pointfield.training.loop import TrainingState
+from pointfield.training.run import Run, RunDirectory
+from pointfield.training.task import Step, Task
+from pointfield.version import __version__
+from pointfield.viz.plots import plot_confusion_matrix, plot_training_curves
 
 TASKS = ("classify", "segment")
 DEFAULT_POINTS = 1024
@@ -112,8 +140,6 @@ def open_data(
     under :func:`default_cache_dir`; for segmentation its clouds need the per-point integer
     field ``label_field``. ``classes`` fixes the class order (that of a trained model).
     """
-    from pointfield.clouds.shapes import SyntheticShapes
-
     if data is None:
         per_class = shapes_per_class or 100
         count = per_class if split == "train" else max(1, round(per_class * 0.3))
@@ -152,6 +178,131 @@ def _check_not_empty(dataset: CloudDataset, split: str, data: Any) -> None:
 # ---------------------------------------------------------------------------------------------
 
 
+class CloudTask(Task):
+    """Classification or segmentation of clouds, as the training lifecycle runs it (see the module doc)."""
+
+    extendable = ("epochs",)
+
+    @classmethod
+    def configure(cls, settings: dict[str, Any]) -> dict[str, Any]:
+        model = settings["model"]
+        if model not in MODEL_NAMES:
+            raise PointfieldError(f"unknown model {model!r}: expected one of {', '.join(MODEL_NAMES)}")
+        if settings["points"] < 1:
+            raise PointfieldError(f"--points must be at least 1, got {settings['points']}")
+        options = dict(MODEL_OPTIONS[model])
+        if model == "pointnet":
+            options.update(input_transform=settings["input_transform"],
+                           feature_transform=settings["feature_transform"])
+        data = settings["data"]
+        return {
+            "task": cls.name,
+            "model": model,
+            "model_options": options,
+            "data": None if data is None else str(Path(data).resolve()),
+            "points": settings["points"],
+            "epochs": settings["epochs"] if settings["epochs"] is not None else DEFAULT_EPOCHS[model],
+            "batch_size": settings["batch_size"] or DEFAULT_BATCH_SIZE[model],
+            "learning_rate": settings["learning_rate"],
+            "seed": settings["seed"],
+            "features": ["normals"] if settings["normals"] else [],
+            "label_field": settings["label_field"],
+            "shapes_per_class": settings["shapes_per_class"],
+            "mesh_points": DEFAULT_MESH_POINTS,
+            "pointfield_version": __version__,
+        }
+
+    def __init__(self, config, device, distributed, progress, *, workers: int = 0, on_error: str = "skip"):
+        super().__init__(config, device, distributed, progress)
+        self.workers = workers
+        train_set, test_set = _open_pair(config, on_error, progress)
+        config.update(_data_summary(train_set, test_set, config))
+        config["world_size"] = distributed.world_size if distributed else 1
+        config["device"] = str(device)
+        self.model = _build(config).to(device)
+        self.parameters = count_parameters(self.model)
+        self.trained = wrap(self.model, distributed, device)
+        self.optimizer = torch.optim.Adam(
+            self.trained.parameters(), lr=config["learning_rate"], weight_decay=WEIGHT_DECAY
+        )
+        self.scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
+            self.optimizer, T_max=max(config["epochs"], 1),
+            eta_min=config["learning_rate"] * FINAL_LEARNING_RATE_FRACTION,
+        )
+        self.epochs = config["epochs"]
+        self.identity = identity_of(config)
+        self.collate = CloudCollate(config["features"], point_labels=self.name == "segment")
+        self.train_set = train_set.with_transform(training_transform(config["points"]))
+        self.test_set = test_set.with_transform(evaluation_transform(config["points"]))
+        self.confusion: np.ndarray | None = None
+        if distributed is None or distributed.is_main:
+            print(f"{self.name} {config['model']}: {self.parameters:,} parameters on {device}; "
+                  f"{config['data_description']}")
+
+    def batches(self, epoch: int) -> torch.utils.data.DataLoader:
+        set_batchnorm_momentum(self.model, epoch * len(self.train_set))
+        self.train_set.set_epoch(epoch)
+        return _training_loader(
+            self.train_set, self.config, self.collate, epoch, self.workers, self.distributed, self.device
+        )
+
+    def step(self, batch: Any) -> Step:
+        """Cross-entropy (per shape, or per real point), with the model's regulariser beside it."""
+        batch = batch.to(self.device)
+        logits, regulariser = self.trained(batch.points, batch.features, batch.mask, with_regulariser=True)
+        if self.name == "classify":
+            loss = F.cross_entropy(logits, batch.labels)
+            correct = (logits.argmax(dim=-1) == batch.labels).float().mean()
+        else:
+            target = batch.point_labels.reshape(-1)
+            flat = logits.reshape(-1, logits.shape[-1])
+            loss = F.cross_entropy(flat, target, ignore_index=-1)
+            real = target >= 0
+            correct = (flat.argmax(-1)[real] == target[real]).float().mean()
+        return Step(loss, {"accuracy": float(correct)}, {"regulariser": regulariser})
+
+    def evaluate(self, epoch: int) -> dict[str, float]:
+        self.confusion = confusion_on(
+            self.model, self.test_set, self.name, self.config, self.collate, self.device, self.distributed
+        )
+        return {f"test_{k}": v for k, v in _scores(self.confusion, self.name).items()}
+
+    def draw(self, run: RunDirectory, history: list[dict[str, Any]]) -> None:
+        plot_training_curves(history, run.path / CURVES_PNG, title=_title(self.config))
+
+    def finish(self, run: RunDirectory, state: TrainingState) -> dict[str, Any]:
+        confusion = self.confusion
+        if confusion is None:  # a resumed run that had already finished its epochs
+            confusion = confusion_on(self.model, self.test_set, self.name, self.config, self.collate,
+                                     self.device, self.distributed)
+        if self.distributed is None or self.distributed.is_main:
+            plot_confusion_matrix(confusion, _label_names(self.config), run.path / CONFUSION_PNG,
+                                  title=_title(self.config))
+            if state.history:
+                self.draw(run, state.history)
+        return {
+            **_scores(confusion, self.name),
+            "per_class": _per_class(confusion, self.name, _label_names(self.config)),
+            "epochs": state.epoch,
+            "seconds": round(state.seconds, 3),
+            "test_samples": len(self.test_set),
+            "train_samples": len(self.train_set),
+            "model": self.config["model"],
+            "parameters": self.parameters,
+        }
+
+
+class ClassifyTask(CloudTask):
+    name = "classify"
+
+
+class SegmentTask(CloudTask):
+    name = "segment"
+
+
+TASK_CLASSES: dict[str, type[CloudTask]] = {"classify": ClassifyTask, "segment": SegmentTask}
+
+
 def train(
     task: str,
     data: str | os.PathLike[str] | None = None,
@@ -177,140 +328,26 @@ def train(
 ) -> dict[str, Any]:
     """Train a classifier or segmenter and write its run folder; returns the final metrics.
 
-    With ``resume`` the run in ``out`` continues from its last checkpoint with the settings in
-    its ``config.json`` (only ``epochs``, if given, may raise the number of epochs). Launched
-    by ``torchrun`` with several processes, this trains with DistributedDataParallel.
+    ``data``: a folder of clouds (one subfolder per class), ModelNet, or None for the built-in
+    synthetic shapes. The number of epochs and the batch size default to the model's recipe
+    (PointNet 10 and 32, PointNet++ 5 and 16). ``input_transform`` / ``feature_transform``
+    switch PointNet's T-Nets; ``normals`` feeds per-point normals as input features. With
+    ``resume`` the run in ``out`` continues from its last checkpoint with the settings in its
+    ``config.json`` (only ``epochs``, if given, may change). Launched by ``torchrun`` with
+    several processes, this trains with DistributedDataParallel. Classification returns
+    ``accuracy``, ``mean_class_accuracy``, ``per_class`` accuracy, ``epochs``, ``seconds``, ...;
+    segmentation adds ``miou`` and gives IoU ``per_class``.
     """
-    from pointfield.training import RunDirectory, distributed, fit, unwrap
-
-    _check_task(task)
-    dist_info, device_used = distributed.setup(device)
-    is_main = dist_info is None or dist_info.is_main
-    try:
-        run = RunDirectory(out)
-        if resume and run.exists():
-            config = run.read_config()
-            if config.get("task") != task:
-                raise PointfieldError(f"{run.path} is a {config.get('task')} run, not {task}")
-            if epochs is not None:
-                config["epochs"] = epochs
-        else:
-            if model not in MODEL_NAMES:
-                raise PointfieldError(
-                    f"unknown model {model!r}: expected one of {', '.join(MODEL_NAMES)}"
-                )
-            config = _new_config(
-                task, data, model, epochs, batch_size, points, seed, normals, input_transform,
-                feature_transform, learning_rate, label_field, shapes_per_class,
-            )
-        if is_main:
-            run.create(resume)
-        torch.manual_seed(config["seed"])
-        train_set, test_set = _open_pair(config, on_error, progress and is_main)
-        config.update(_data_summary(train_set, test_set, config))
-        if is_main:
-            config["world_size"] = dist_info.world_size if dist_info else 1
-            config["device"] = str(device_used)
-            run.write_config(config)
-        net = _build(config).to(device_used)
-        parameters = count_parameters(net)
-        trained = distributed.wrap(net, dist_info, device_used)
-        optimizer = torch.optim.Adam(
-            trained.parameters(), lr=config["learning_rate"], weight_decay=WEIGHT_DECAY
-        )
-        scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
-            optimizer, T_max=max(config["epochs"], 1),
-            eta_min=config["learning_rate"] * FINAL_LEARNING_RATE_FRACTION,
-        )
-        collate = CloudCollate(config["features"], point_labels=task == "segment")
-        train_set = train_set.with_transform(training_transform(config["points"]))
-        test_set = test_set.with_transform(evaluation_transform(config["points"]))
-        last_confusion: dict[str, np.ndarray] = {}
-
-        def batches(epoch: int) -> torch.utils.data.DataLoader:
-            set_batchnorm_momentum(net, epoch * len(train_set))
-            train_set.set_epoch(epoch)
-            return _training_loader(
-                train_set, config, collate, epoch, workers, dist_info, device_used
-            )
-
-        def step(batch: Any) -> tuple[torch.Tensor, dict[str, float]]:
-            return _loss(trained, unwrap(trained), batch.to(device_used), task)
-
-        def evaluate_epoch(epoch: int) -> dict[str, float]:
-            confusion = confusion_on(
-                unwrap(trained), test_set, task, config, collate, device_used, dist_info
-            )
-            last_confusion["matrix"] = confusion
-            return {f"test_{k}": v for k, v in _scores(confusion, task).items()}
-
-        def draw(history: list[dict[str, Any]]) -> None:
-            from pointfield.viz.plots import plot_training_curves
-
-            plot_training_curves(history, run.path / CURVES_PNG, title=_title(config))
-
-        if is_main:
-            print(f"{task} {config['model']}: {parameters:,} parameters on {device_used}; "
-                  f"{config['data_description']}")
-        state = fit(
-            trained, optimizer, step, batches, config["epochs"], run=run,
-            identity=identity_of(config), scheduler=scheduler, evaluate=evaluate_epoch,
-            on_epoch_end=draw, resume=resume, checkpoint_seconds=checkpoint_seconds,
-            distributed=dist_info, device=device_used, progress=progress,
-        )
-        confusion = last_confusion.get("matrix")
-        if confusion is None:  # a resumed run that had already finished its epochs
-            confusion = confusion_on(net, test_set, task, config, collate, device_used, dist_info)
-        final = {
-            **_scores(confusion, task),
-            "per_class": _per_class(confusion, task, _label_names(config)),
-            "epochs": state.epoch,
-            "seconds": round(state.seconds, 3),
-            "test_samples": len(test_set),
-            "train_samples": len(train_set),
-            "model": config["model"],
-            "parameters": parameters,
-        }
-        if is_main:
-            from pointfield.viz.plots import plot_confusion_matrix, plot_training_curves
-
-            run.write_final_metrics(final)
-            plot_confusion_matrix(confusion, _label_names(config), run.path / CONFUSION_PNG,
-                                  title=_title(config))
-            if state.history:
-                plot_training_curves(state.history, run.path / CURVES_PNG, title=_title(config))
-        return final
-    finally:
-        distributed.shutdown()
-
-
-def _new_config(
-    task, data, model, epochs, batch_size, points, seed, normals, input_transform,
-    feature_transform, learning_rate, label_field, shapes_per_class,
-) -> dict[str, Any]:
-    import pointfield
-
-    options = dict(MODEL_OPTIONS[model])
-    if model == "pointnet":
-        options.update(input_transform=input_transform, feature_transform=feature_transform)
-    if points < 1:
-        raise PointfieldError(f"--points must be at least 1, got {points}")
-    return {
-        "task": task,
-        "model": model,
-        "model_options": options,
-        "data": None if data is None else str(Path(data).resolve()),
-        "points": points,
-        "epochs": epochs if epochs is not None else DEFAULT_EPOCHS[model],
-        "batch_size": batch_size or DEFAULT_BATCH_SIZE[model],
-        "learning_rate": learning_rate,
-        "seed": seed,
-        "features": ["normals"] if normals else [],
-        "label_field": label_field,
-        "shapes_per_class": shapes_per_class,
-        "mesh_points": DEFAULT_MESH_POINTS,
-        "pointfield_version": pointfield.__version__,
+    settings = {
+        "data": data, "model": model, "epochs": epochs, "batch_size": batch_size, "points": points,
+        "seed": seed, "normals": normals, "input_transform": input_transform,
+        "feature_transform": feature_transform, "learning_rate": learning_rate,
+        "label_field": label_field, "shapes_per_class": shapes_per_class,
     }
+    return lifecycle.train(
+        _task_class(task), settings, options={"workers": workers, "on_error": on_error}, out=out,
+        resume=resume, device=device, checkpoint_seconds=checkpoint_seconds, progress=progress,
+    )
 
 
 def _open_pair(
@@ -384,23 +421,6 @@ def set_batchnorm_momentum(model: torch.nn.Module, samples_seen: int) -> float:
     return momentum
 
 
-def _loss(
-    model: torch.nn.Module, inner: torch.nn.Module, batch: Any, task: str
-) -> tuple[torch.Tensor, dict[str, float]]:
-    """Cross-entropy (per shape or per real point) plus the model's regulariser."""
-    logits = model(batch.points, batch.features, batch.mask)
-    if task == "classify":
-        loss = F.cross_entropy(logits, batch.labels)
-        correct = (logits.argmax(dim=-1) == batch.labels).float().mean()
-    else:
-        target = batch.point_labels.reshape(-1)
-        loss = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target, ignore_index=-1)
-        real = target >= 0
-        correct = (logits.reshape(-1, logits.shape[-1]).argmax(-1)[real] == target[real]).float()
-        correct = correct.mean()
-    return loss + inner.regulariser, {"accuracy": float(correct)}
-
-
 # ---------------------------------------------------------------------------------------------
 # Evaluation
 # ---------------------------------------------------------------------------------------------
@@ -416,8 +436,6 @@ def confusion_on(
     dist_info: Any = None,
 ) -> np.ndarray:
     """The confusion matrix of ``model`` over ``dataset`` (summed over processes)."""
-    from pointfield.training.distributed import shard
-
     classes = len(_label_names(config))
     subset = torch.utils.data.Subset(dataset, shard(len(dataset), dist_info))
     loader = torch.utils.data.DataLoader(
@@ -447,53 +465,8 @@ def _scores(confusion: np.ndarray, task: str) -> dict[str, float]:
 
 
 def _per_class(confusion: np.ndarray, task: str, names: Sequence[str]) -> dict[str, float | None]:
-    from pointfield.metrics import class_accuracies
-
     values = class_iou(confusion) if task == "segment" else class_accuracies(confusion)
     return {name: None if np.isnan(v) else float(v) for name, v in zip(names, values)}
-
-
-def evaluate(
-    task: str,
-    run: str | os.PathLike[str],
-    data: str | os.PathLike[str] | None = None,
-    *,
-    device: str | None = None,
-    on_error: str = "skip",
-    progress: bool = False,
-) -> dict[str, Any]:
-    """Score a trained run on the test split of ``data`` (default: the data it trained on).
-
-    Returns ``accuracy``, ``mean_class_accuracy`` (and ``miou`` for segmentation), the score
-    of each class (``per_class``: accuracy, or IoU for segmentation), the ``confusion`` matrix
-    as a list of rows, and the number of ``samples``.
-    """
-    from pointfield.devices import pick_device
-
-    config, model, _ = load_run(task, run, pick_device(device))
-    data = data if data is not None else config["data"]
-    dataset = open_data(
-        task, data, "test", seed=config["seed"], on_error=on_error,
-        label_field=config["label_field"], shapes_per_class=config["shapes_per_class"],
-        classes=config["classes"] if data is not None else None, points=config["points"],
-        mesh_points=config["mesh_points"], progress=progress,
-    )
-    _check_not_empty(dataset, "test", data)
-    if task == "segment" and dataset.parts and len(dataset.parts) > len(config["parts"]):
-        raise PointfieldError(
-            f"{data}: its labels go up to {len(dataset.parts) - 1}, but the model knows "
-            f"{len(config['parts'])} parts"
-        )
-    collate = CloudCollate(config["features"], point_labels=task == "segment")
-    dataset = dataset.with_transform(evaluation_transform(config["points"]))
-    device_used = next(model.parameters()).device
-    confusion = confusion_on(model, dataset, task, config, collate, device_used)
-    return {
-        **_scores(confusion, task),
-        "per_class": _per_class(confusion, task, _label_names(config)),
-        "confusion": confusion.tolist(),
-        "samples": len(dataset),
-    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -501,22 +474,122 @@ def evaluate(
 # ---------------------------------------------------------------------------------------------
 
 
-def load_run(
-    task: str, run: str | os.PathLike[str], device: torch.device
-) -> tuple[dict[str, Any], torch.nn.Module, Path]:
-    """A run's config and its trained model (in evaluation mode, on ``device``)."""
-    from pointfield.training import RunDirectory, load_checkpoint, restore
+class CloudRun(Run):
+    """A trained classifier or segmenter, opened by :func:`pointfield.load_run` (or :meth:`open`)."""
 
-    folder = RunDirectory(run)
-    config = folder.read_config()
-    if config.get("task") != task:
-        raise PointfieldError(f"{folder.path} is a {config.get('task')!r} run, not {task!r}")
-    if "classes" not in config:
-        raise PointfieldError(f"{folder.path}: the run never got as far as opening its data")
-    payload = load_checkpoint(folder.checkpoint, identity_of(config), map_location=device)
-    model = _build(config)
-    restore(folder.checkpoint, payload, model)
-    return config, model.to(device).eval(), folder.path
+    tasks = ("classify", "segment")
+
+    @classmethod
+    def open(cls, directory: RunDirectory, config: dict[str, Any], device: torch.device) -> CloudRun:
+        if "classes" not in config:
+            raise PointfieldError(f"{directory.path}: the run never got as far as opening its data")
+        model = restore_model(directory, _build(config), identity_of(config), device)
+        return cls(directory, config, model, device)
+
+    def evaluate(
+        self, data: str | os.PathLike[str] | None = None, *, on_error: str = "skip", progress: bool = False
+    ) -> dict[str, Any]:
+        """Score the model on the test split of ``data`` (default: the data it trained on).
+
+        Returns ``accuracy``, ``mean_class_accuracy`` (and ``miou`` for segmentation), the score
+        of each class (``per_class``: accuracy, or IoU for segmentation), the ``confusion``
+        matrix as a list of rows, and the number of ``samples``.
+        """
+        config, task = self.config, self.task
+        data = data if data is not None else config["data"]
+        dataset = open_data(
+            task, data, "test", seed=config["seed"], on_error=on_error,
+            label_field=config["label_field"], shapes_per_class=config["shapes_per_class"],
+            classes=config["classes"] if data is not None else None, points=config["points"],
+            mesh_points=config["mesh_points"], progress=progress,
+        )
+        _check_not_empty(dataset, "test", data)
+        if task == "segment" and dataset.parts and len(dataset.parts) > len(config["parts"]):
+            raise PointfieldError(
+                f"{data}: its labels go up to {len(dataset.parts) - 1}, but the model knows "
+                f"{len(config['parts'])} parts"
+            )
+        collate = CloudCollate(config["features"], point_labels=task == "segment")
+        dataset = dataset.with_transform(evaluation_transform(config["points"]))
+        confusion = confusion_on(self.module, dataset, task, config, collate, self.device)
+        return {
+            **_scores(confusion, task),
+            "per_class": _per_class(confusion, task, _label_names(config)),
+            "confusion": confusion.tolist(),
+            "samples": len(dataset),
+        }
+
+    def predict(
+        self, files: Sequence[str | os.PathLike[str]], *, out: str | os.PathLike[str] | None = None
+    ) -> list[dict[str, Any]]:
+        """Apply the model to files.
+
+        Classification: one dict per file with ``file``, ``class``, ``probability`` and
+        ``probabilities`` (class name -> probability). Segmentation: every point of each file
+        gets the part of its nearest model-input point, and the cloud (a mesh keeps its faces)
+        is written with an int32 ``label`` field to ``out/<stem>.ply`` (default
+        ``RUN/predictions``); one dict per file with ``file``, ``output``, ``points`` and
+        ``parts`` (part name -> count).
+        """
+        config, task = self.config, self.task
+        paths = [Path(f) for f in files]
+        if not paths:
+            raise PointfieldError("no files to predict")
+        collate = CloudCollate(config["features"])
+        out_dir = Path(out) if out is not None else self.path / "predictions"
+        if task == "segment":
+            stems = [p.stem for p in paths]
+            duplicate = next((s for s in stems if stems.count(s) > 1), None)
+            if duplicate is not None:
+                raise PointfieldError(f"two inputs are named {duplicate!r}: their outputs would clash")
+        results = []
+        for path in paths:
+            data, prepared, centre, radius = prepare_for_prediction(path, config)
+            batch = collate([(prepared, 0)]).to(self.device)
+            with torch.inference_mode():
+                logits = self.module(batch.points, batch.features, batch.mask)[0].float()
+            if task == "classify":
+                results.append(_class_answer(path, logits, config["classes"]))
+            else:
+                results.append(_write_parts(path, data, prepared, centre, radius, logits, config, out_dir))
+        return results
+
+
+def _class_answer(path: Path, logits: torch.Tensor, classes: Sequence[str]) -> dict[str, Any]:
+    probabilities = torch.softmax(logits, dim=-1).cpu().numpy()
+    best = int(probabilities.argmax())
+    return {
+        "file": str(path),
+        "class": classes[best],
+        "probability": float(probabilities[best]),
+        "probabilities": {name: float(p) for name, p in zip(classes, probabilities)},
+    }
+
+
+def _write_parts(
+    path: Path, data: PointCloud, prepared: PointCloud, centre: np.ndarray, radius: float,
+    logits: torch.Tensor, config: dict[str, Any], out_dir: Path,
+) -> dict[str, Any]:
+    """Label every point of ``data`` by its nearest model input, write it, count the parts."""
+    input_labels = logits.argmax(dim=-1).cpu()
+    labels = np.full(len(data), -1, np.int32)
+    targets = np.flatnonzero(ops.finite_rows(data.points))
+    if len(targets):
+        moved = (data.points[targets].astype(np.float64) - centre) / radius
+        _, nearest = ops.knn(
+            torch.from_numpy(moved.astype(np.float32))[None], torch.from_numpy(prepared.points)[None], 1,
+        )
+        labels[targets] = input_labels[nearest[0, :, 0]].numpy()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    output = out_dir / f"{path.stem}.ply"
+    write(output, _with_field(data, PART_LABEL_FIELD, labels))
+    counts = np.bincount(labels[labels >= 0], minlength=len(config["parts"]))
+    return {
+        "file": str(path),
+        "output": str(output),
+        "points": int(len(labels)),
+        "parts": {name: int(c) for name, c in zip(config["parts"], counts) if c},
+    }
 
 
 def prepare_for_prediction(
@@ -528,9 +601,7 @@ def prepare_for_prediction(
     of ``points`` finite points, mapped by ``(p - centre) / radius`` into the unit sphere of
     all the finite points.
     """
-    import pointfield
-
-    data = pointfield.read(path)
+    data = read(path)
     if not isinstance(data, PointCloud):
         raise FormatError(path, "holds records without x y z coordinates, not a point cloud")
     source = data
@@ -554,6 +625,28 @@ def prepare_for_prediction(
     return data, prepared, centre, radius
 
 
+def open_run(task: str, run: str | os.PathLike[str], device: str | None = None) -> CloudRun:
+    """The ``task`` run in folder ``run``, opened (refusing a run of another task)."""
+    directory = RunDirectory(run)
+    config = directory.read_config()
+    if config.get("task") != task:
+        raise PointfieldError(f"{directory.path} is a {config.get('task')!r} run, not {task!r}")
+    return CloudRun.open(directory, config, pick_device(device))
+
+
+def evaluate(
+    task: str,
+    run: str | os.PathLike[str],
+    data: str | os.PathLike[str] | None = None,
+    *,
+    device: str | None = None,
+    on_error: str = "skip",
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Score a trained run on the test split of ``data`` (see :meth:`CloudRun.evaluate`)."""
+    return open_run(task, run, device).evaluate(data, on_error=on_error, progress=progress)
+
+
 def predict(
     task: str,
     run: str | os.PathLike[str],
@@ -562,68 +655,22 @@ def predict(
     device: str | None = None,
     out: str | os.PathLike[str] | None = None,
 ) -> list[dict[str, Any]]:
-    """Apply a trained run to files.
+    """Apply a trained run to files (see :meth:`CloudRun.predict`)."""
+    return open_run(task, run, device).predict(files, out=out)
 
-    Classification: one dict per file with ``file``, ``class``, ``probability`` and
-    ``probabilities`` (class name -> probability). Segmentation: every point of each file gets
-    the part of its nearest model-input point, and the cloud (a mesh keeps its faces) is
-    written with an int32 ``label`` field to ``out/<stem>.ply`` (default ``RUN/predictions``);
-    one dict per file with ``file``, ``output``, ``points`` and ``parts`` (part name -> count).
-    """
-    import pointfield
-    from pointfield.devices import pick_device
 
-    device_used = pick_device(device)
-    config, model, run_path = load_run(task, run, device_used)
-    paths = [Path(f) for f in files]
-    if not paths:
-        raise PointfieldError("no files to predict")
-    collate = CloudCollate(config["features"])
-    out_dir = Path(out) if out is not None else run_path / "predictions"
-    if task == "segment":
-        stems = [p.stem for p in paths]
-        duplicate = next((s for s in stems if stems.count(s) > 1), None)
-        if duplicate is not None:
-            raise PointfieldError(f"two inputs are named {duplicate!r}: their outputs would clash")
-    results = []
-    for path in paths:
-        data, prepared, centre, radius = prepare_for_prediction(path, config)
-        batch = collate([(prepared, 0)]).to(device_used)
-        with torch.inference_mode():
-            logits = model(batch.points, batch.features, batch.mask)[0].float()
-        if task == "classify":
-            probabilities = torch.softmax(logits, dim=-1).cpu().numpy()
-            best = int(probabilities.argmax())
-            results.append({
-                "file": str(path),
-                "class": config["classes"][best],
-                "probability": float(probabilities[best]),
-                "probabilities": {
-                    name: float(p) for name, p in zip(config["classes"], probabilities)
-                },
-            })
-            continue
-        input_labels = logits.argmax(dim=-1).cpu()
-        labels = np.full(len(data), -1, np.int32)
-        targets = np.flatnonzero(ops.finite_rows(data.points))
-        if len(targets):
-            moved = (data.points[targets].astype(np.float64) - centre) / radius
-            _, nearest = ops.knn(
-                torch.from_numpy(moved.astype(np.float32))[None],
-                torch.from_numpy(prepared.points)[None], 1,
-            )
-            labels[targets] = input_labels[nearest[0, :, 0]].numpy()
-        out_dir.mkdir(parents=True, exist_ok=True)
-        output = out_dir / f"{path.stem}.ply"
-        pointfield.write(output, _with_field(data, PART_LABEL_FIELD, labels))
-        counts = np.bincount(labels[labels >= 0], minlength=len(config["parts"]))
-        results.append({
-            "file": str(path),
-            "output": str(output),
-            "points": int(len(labels)),
-            "parts": {name: int(c) for name, c in zip(config["parts"], counts) if c},
-        })
-    return results
+classify = SimpleNamespace(
+    train=functools.partial(train, "classify", out="runs/classify"),
+    evaluate=functools.partial(evaluate, "classify"),
+    predict=functools.partial(predict, "classify"),
+)
+"""``pointfield classify train|eval|predict`` as Python: ``pointfield.classify.train(...)``."""
+segment = SimpleNamespace(
+    train=functools.partial(train, "segment", out="runs/segment"),
+    evaluate=functools.partial(evaluate, "segment"),
+    predict=functools.partial(predict, "segment"),
+)
+"""``pointfield segment train|eval|predict`` as Python: ``pointfield.segment.train(...)``."""
 
 
 def _with_field(data: PointCloud, name: str, values: np.ndarray) -> PointCloud:
@@ -666,6 +713,7 @@ def _title(config: dict[str, Any]) -> str:
     return f"{config['task']} · {config['model']} · {config['points']} points"
 
 
-def _check_task(task: str) -> None:
-    if task not in TASKS:
-        raise PointfieldError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")
+def _task_class(task: str) -> type[CloudTask]:
+    if task not in TASK_CLASSES:
+        raise PointfieldError(f"unknown task {task!r}: expected one of {', '.join(TASK_CLASSES)}")
+    return TASK_CLASSES[task]

@@ -1,29 +1,39 @@
-"""The one training loop models plug into, with its run folder, checkpoints and DDP helpers.
+"""The one training lifecycle every model plugs into: tasks, the loop, run folders, checkpoints, DDP.
 
-- :func:`fit` (``loop.py``): epochs of ``step(batch) -> (loss, stats)`` with evaluation,
-  logging, progress, atomic checkpoints, resuming, a time limit and NaN checks.
-- :class:`RunDirectory` (``run.py``): ``config.json``, ``metrics.jsonl``, ``metrics.json``,
-  ``checkpoints/last.pt``.
+- :class:`Task`, :class:`Step` (``task.py``): what a training recipe says of its own -- config,
+  batches, the loss of a batch (auxiliary losses by name), evaluation, final metrics.
+- :func:`train`, :func:`restore_model` (``lifecycle.py``): new / resumed run, run folder,
+  final metrics, written once for every task; a run's model with its checkpoint loaded.
+- :func:`fit` (``loop.py``): epochs of steps with evaluation, logging, progress, atomic
+  checkpoints, resuming, a time limit and NaN checks.
+- :class:`RunDirectory`, :class:`Run` (``run.py``): the folder's files; a run opened for use.
 - :func:`save_checkpoint`, :func:`load_checkpoint`, :func:`restore` (``checkpoints.py``).
 - :func:`setup`, :func:`wrap`, :func:`shard`, :func:`shutdown` (``distributed.py``): torchrun.
 """
 
 from pointfield.training.checkpoints import load_checkpoint, restore, save_checkpoint, unwrap
 from pointfield.training.distributed import Distributed, setup, shard, shutdown, wrap
+from pointfield.training.lifecycle import restore_model, train
 from pointfield.training.loop import TrainingState, fit
-from pointfield.training.run import RunDirectory
+from pointfield.training.run import Run, RunDirectory
+from pointfield.training.task import Step, Task
 
 __all__ = [
     "Distributed",
+    "Run",
     "RunDirectory",
+    "Step",
+    "Task",
     "TrainingState",
     "fit",
     "load_checkpoint",
     "restore",
+    "restore_model",
     "save_checkpoint",
     "setup",
     "shard",
     "shutdown",
+    "train",
     "unwrap",
     "wrap",
 ]

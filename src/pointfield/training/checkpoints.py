@@ -25,6 +25,7 @@ from torch import nn
 
 from pointfield.atomic import atomic_path
 from pointfield.errors import PointfieldError
+from pointfield.version import __version__
 
 CHECKPOINT_FORMAT = "pointfield-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -45,12 +46,10 @@ def save_checkpoint(
     state: dict[str, Any] | None = None,
 ) -> None:
     """Write a checkpoint atomically: a crash mid-write leaves the previous one intact."""
-    import pointfield
-
     payload = {
         "format": CHECKPOINT_FORMAT,
         "version": CHECKPOINT_VERSION,
-        "pointfield": pointfield.__version__,
+        "pointfield": __version__,
         "identity": identity,
         "model": unwrap(model).state_dict(),
         "optimizer": optimizer.state_dict() if optimizer is not None else None,

@@ -15,7 +15,8 @@ epoch and every ``checkpoint_seconds`` within one; resume from the last checkpoi
 stat (``loss=0.0123, psnr=19.12``). A loss that is NaN or infinite stops training with an
 error naming the epoch and step, never a silently ruined model.
 
-An epoch's record holds ``epoch``, ``step``, ``seconds``, ``lr``, the epoch's mean loss as
+An epoch's record holds ``epoch``, ``step``, ``seconds`` (wall clock, evaluation included),
+``training_seconds`` (evaluation excluded: what time-to-PSNR figures read), ``lr``, the epoch's mean loss as
 ``train_loss`` (and under each of ``loss_aliases``), the mean of each stat as ``train_<stat>``,
 and what ``evaluate`` returned.
 
@@ -51,8 +52,8 @@ class TrainingState:
     """Where training stands; saved in every checkpoint.
 
     ``epoch`` epochs and ``step`` optimizer steps are finished; ``batch`` batches of the
-    current epoch are done (0 at an epoch boundary); ``seconds`` of training so far, over all
-    sessions; ``history`` holds one record per finished epoch; ``running`` the sums behind the
+    current epoch are done (0 at an epoch boundary); ``seconds`` of wall clock so far, over all
+    sessions, of which ``evaluation_seconds`` went to evaluation; ``history`` holds one record per finished epoch; ``running`` the sums behind the
     current epoch's averages.
     """
 
@@ -60,8 +61,14 @@ class TrainingState:
     step: int = 0
     batch: int = 0
     seconds: float = 0.0
+    evaluation_seconds: float = 0.0
     history: list[dict[str, Any]] = field(default_factory=list)
     running: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def training_seconds(self) -> float:
+        """Wall clock minus evaluation: the one clock every time-to-PSNR figure reads."""
+        return self.seconds - self.evaluation_seconds
 
 
 def fit(
@@ -171,12 +178,12 @@ def fit(
         if evaluate is not None:
             evaluation_started = time.perf_counter()
             record.update(evaluate(state.epoch))
-            # Kept apart so benchmarks can report training time without evaluation time.
             record["evaluation_seconds"] = round(time.perf_counter() - evaluation_started, 3)
+            state.evaluation_seconds += record["evaluation_seconds"]
         state.epoch += 1
         state.seconds = seconds_before + time.perf_counter() - session_start
         record = {"epoch": state.epoch, "step": state.step, "seconds": round(state.seconds, 3),
-                  **record}
+                  "training_seconds": round(state.training_seconds, 3), **record}
         state.history.append(record)
         if is_main:
             if run is not None:
@@ -232,7 +239,7 @@ def _finish_epoch(
 def _format_record(record: dict[str, Any], epochs: int, hidden: tuple[str, ...] = ()) -> str:
     parts = [f"epoch {record['epoch']}/{epochs}"]
     for name, value in record.items():
-        if name in ("epoch", "step", "seconds", "lr", "evaluation_seconds") or name in hidden:
+        if name in ("epoch", "step", "seconds", "training_seconds", "lr", "evaluation_seconds") or name in hidden:
             continue
         parts.append(f"{name.replace('_', ' ')} {value:.4f}" if isinstance(value, float)
                      else f"{name} {value}")

@@ -1,4 +1,4 @@
-"""The run directory: everything one training run writes, in one folder.
+"""The run directory -- everything one training run writes, in one folder -- and a run opened for use.
 
 ::
 
@@ -18,7 +18,10 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
+
+import torch
+from torch import nn
 
 from pointfield.atomic import atomic_path
 from pointfield.errors import PointfieldError
@@ -88,3 +91,47 @@ def read_json(path: Path) -> Any:
         return json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
         raise PointfieldError(f"{path}: cannot read it as JSON ({error})") from None
+
+
+class Run:
+    """A trained run opened for use: its folder, settings, history, scores and model.
+
+    Every kind of run (:func:`pointfield.load_run` opens any of them) has ``path``,
+    ``config`` (its ``config.json``), ``task`` and ``model_name`` (what was trained),
+    ``history`` (``metrics.jsonl``), ``metrics`` (``metrics.json``; empty while a run is still
+    unfinished), ``device`` and ``module`` (the trained model, in evaluation mode). Each kind
+    adds what it can do: a cloud run predicts, a scene run renders any camera.
+    """
+
+    tasks: ClassVar[tuple[str, ...]]
+    """The ``config["task"]`` values this class opens."""
+
+    def __init__(self, directory: RunDirectory, config: dict[str, Any], module: nn.Module, device: torch.device):
+        self.directory = directory
+        self.config = config
+        self.module = module
+        self.device = device
+
+    @property
+    def path(self) -> Path:
+        return self.directory.path
+
+    @property
+    def task(self) -> str:
+        return self.config["task"]
+
+    @property
+    def model_name(self) -> str:
+        return str(self.config.get("model", self.task))
+
+    @property
+    def history(self) -> list[dict[str, Any]]:
+        return self.directory.read_metrics_log()
+
+    @property
+    def metrics(self) -> dict[str, Any]:
+        final = self.directory.final_metrics
+        return read_json(final) if final.is_file() else {}
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({str(self.path)!r}, task={self.task!r}, model={self.model_name!r}, device={self.device})"

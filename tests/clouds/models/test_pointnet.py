@@ -71,13 +71,15 @@ def test_orthogonality_loss_is_zero_for_rotations_and_positive_otherwise():
     assert orthogonality_loss(2 * rotation[None]) > 1
 
 
-def test_the_regulariser_is_left_for_the_training_step():
+def test_the_regulariser_is_returned_to_the_training_step_when_asked():
     model = PointNetClassifier(3)
-    model(torch.randn(4, 16, 3))
-    assert model.regulariser.requires_grad and model.regulariser >= 0
+    logits, regulariser = model(torch.randn(4, 16, 3), with_regulariser=True)
+    assert logits.shape == (4, 3)
+    assert regulariser.requires_grad and regulariser >= 0
+    assert not hasattr(model, "regulariser")  # nothing is left on the model by forward
     bare = PointNetClassifier(3, feature_transform=False)
-    bare(torch.randn(4, 16, 3))
-    assert float(bare.regulariser) == 0
+    _, none = bare(torch.randn(4, 16, 3), with_regulariser=True)
+    assert float(none) == 0
 
 
 def test_build_model_by_name():

@@ -10,8 +10,9 @@ name                classification                     segmentation
 
 Every model maps ``points`` ``(B, N, 3)``, optional ``features`` ``(B, N, C)`` and ``mask``
 ``(B, N)`` to scores (logits): ``(B, classes)`` for classification, ``(B, N, classes)`` for
-segmentation; and leaves in ``model.regulariser`` a scalar to add to the loss (PointNet's
-feature-transform regulariser; 0 for the others). :func:`build_model` makes one by name.
+segmentation; called with ``with_regulariser=True`` it returns ``(logits, regulariser)``, a
+scalar for the training step to add to the loss (PointNet's feature-transform regulariser; 0
+for the others). :func:`build_model` makes one by name.
 """
 
 from __future__ import annotations

@@ -116,8 +116,8 @@ class PointNetClassifier(nn.Module):
     """PointNet for shape classification: ``(B, N, 3) -> (B, num_classes)`` scores (logits).
 
     Encoder, then FC 512 and 256 with BatchNorm and ReLU and dropout 0.3 (the paper keeps
-    0.7), then a linear layer to the class scores. ``model.regulariser`` holds the T-Net
-    regulariser of the last forward pass.
+    0.7), then a linear layer to the class scores. ``model(..., with_regulariser=True)``
+    returns ``(logits, regulariser)``: the feature T-Net's orthogonality loss, for the training step.
     """
 
     def __init__(
@@ -136,16 +136,17 @@ class PointNetClassifier(nn.Module):
             in_channels, local_widths, global_widths, input_transform, feature_transform
         )
         self.head = MLP([self.encoder.global_channels, *head_widths], num_classes, dropout)
-        self.regulariser = torch.zeros(())
 
     def forward(
         self,
         points: torch.Tensor,
         features: torch.Tensor | None = None,
         mask: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        pooled, _, self.regulariser = self.encoder(points, features, mask)
-        return self.head(pooled)
+        with_regulariser: bool = False,
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        pooled, _, regulariser = self.encoder(points, features, mask)
+        logits = self.head(pooled)
+        return (logits, regulariser) if with_regulariser else logits
 
 
 class PointNetSegmenter(nn.Module):
@@ -176,15 +177,15 @@ class PointNetSegmenter(nn.Module):
         self.joint = nn.Sequential(nn.BatchNorm1d(head_widths[0]), nn.ReLU())
         self.head = SharedMLP(head_widths)
         self.out = nn.Linear(head_widths[-1], num_classes)
-        self.regulariser = torch.zeros(())
 
     def forward(
         self,
         points: torch.Tensor,
         features: torch.Tensor | None = None,
         mask: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        pooled, local, self.regulariser = self.encoder(points, features, mask)
+        with_regulariser: bool = False,
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        pooled, local, regulariser = self.encoder(points, features, mask)
         joined = self.from_local(local) + self.from_global(pooled)[:, None, :]
-        hidden = self.head(apply_to_rows(self.joint, joined, mask), mask)
-        return self.out(hidden)
+        logits = self.out(self.head(apply_to_rows(self.joint, joined, mask), mask))
+        return (logits, regulariser) if with_regulariser else logits

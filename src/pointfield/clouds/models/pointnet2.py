@@ -224,8 +224,8 @@ def _encoder_levels(in_channels: int, multi_scale: bool, segmentation: bool) -> 
 class PointNet2Classifier(nn.Module):
     """PointNet++ for shape classification: ``(B, N, 3) -> (B, num_classes)`` scores.
 
-    ``multi_scale`` picks MSG instead of SSG. ``model.regulariser`` is always 0 (kept so all
-    pointfield models plug into the same training step).
+    ``multi_scale`` picks MSG instead of SSG. With ``with_regulariser`` it returns
+    ``(logits, 0)``, as every pointfield cloud model does for the training step.
     """
 
     def __init__(
@@ -239,20 +239,20 @@ class PointNet2Classifier(nn.Module):
         self.levels = _encoder_levels(in_channels, multi_scale, segmentation=False)
         self.global_level = GlobalAbstraction(self.levels[-1].out_channels, GLOBAL_WIDTHS)
         self.head = MLP([GLOBAL_WIDTHS[-1], 512, 256], num_classes, dropout)
-        self.regulariser = torch.zeros(())
 
     def forward(
         self,
         points: torch.Tensor,
         features: torch.Tensor | None = None,
         mask: torch.Tensor | None = None,
-    ) -> torch.Tensor:
+        with_regulariser: bool = False,
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         xyz, features = _fill_padding(points, features, mask)
         for level in self.levels:
             xyz, features = level(xyz, features, mask)
             mask = None  # centroids are real points
-        self.regulariser = points.new_zeros(())
-        return self.head(self.global_level(xyz, features))
+        logits = self.head(self.global_level(xyz, features))
+        return (logits, points.new_zeros(())) if with_regulariser else logits
 
 
 class PointNet2Segmenter(nn.Module):
@@ -280,14 +280,14 @@ class PointNet2Segmenter(nn.Module):
             FeaturePropagation(128 + 3 + in_channels, (128, 128, 128)),
         ])
         self.head = nn.Sequential(SharedMLP([128, 128]), nn.Dropout(dropout), nn.Linear(128, num_classes))
-        self.regulariser = torch.zeros(())
 
     def forward(
         self,
         points: torch.Tensor,
         features: torch.Tensor | None = None,
         mask: torch.Tensor | None = None,
-    ) -> torch.Tensor:
+        with_regulariser: bool = False,
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         xyz, filled = _fill_padding(points, features, mask)
         inputs = xyz if filled is None else torch.cat([xyz, filled], dim=-1)
         xyz_1, features_1 = self.levels[0](xyz, filled, mask)
@@ -297,6 +297,6 @@ class PointNet2Segmenter(nn.Module):
         up_2 = self.propagate[0](xyz_2, origin, features_2, global_feature)
         up_1 = self.propagate[1](xyz_1, xyz_2, features_1, up_2)
         up_0 = self.propagate[2](xyz, xyz_1, inputs, up_1, mask)
-        self.regulariser = points.new_zeros(())
         hidden = self.head[0](up_0, mask)
-        return self.head[2](self.head[1](hidden))
+        logits = self.head[2](self.head[1](hidden))
+        return (logits, points.new_zeros(())) if with_regulariser else logits
