@@ -10,7 +10,7 @@ from pointfield.cli import main
 from pointfield.clouds import synthetic
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats import formats
-from pointfield.demo import (
+from pointfield.cli.demo import (
     NERF_QUICK_SETTINGS,
     RoundTrip,
     compare,
@@ -153,7 +153,7 @@ def test_compare_allows_las_coordinates_within_half_their_scale():
 
 
 def test_a_writer_that_raises_is_a_failed_row_not_a_crash(tmp_path, monkeypatch):
-    import pointfield.demo as demo_module
+    import pointfield.cli.demo as demo_module
 
     def broken_write(*args, **kwargs):
         raise RuntimeError("disk on fire")
@@ -167,7 +167,7 @@ def test_a_writer_that_raises_is_a_failed_row_not_a_crash(tmp_path, monkeypatch)
 
 
 def test_cli_demo_exits_non_zero_when_a_round_trip_loses_data(tmp_path, monkeypatch, capsys):
-    import pointfield.demo as demo_module
+    import pointfield.cli.demo as demo_module
 
     real_read = demo_module.read
 

@@ -1,15 +1,31 @@
 """pointfield: a Python toolkit for 3D vision — point clouds, radiance fields, Gaussian splats.
 
-The two functions most people need first::
+The functions most people need first::
 
     import pointfield
     cloud = pointfield.read("scan.pcd")          # any supported format
     pointfield.write("scan.ply", cloud)          # fields preserved, written atomically
+    run = pointfield.load_run("runs/lego-ngp")   # any trained run: .render(cameras), .evaluate(), ...
+    pointfield.classify.train(out="runs/shapes") # pointfield.classify / .segment: train, evaluate, predict
 """
+
+from typing import Any
 
 from pointfield.clouds import Mesh, PointCloud, Records, read, write  # noqa: E402
 from pointfield.errors import FormatError, PointfieldError  # noqa: E402
 from pointfield.version import __version__  # noqa: E402
+
+# The learning half needs torch; it is imported on first use so that reading a cloud stays quick.
+_LEARNING = {"load_run": "pointfield.runs", "classify": "pointfield.clouds.tasks", "segment": "pointfield.clouds.tasks"}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LEARNING:
+        import importlib
+
+        return getattr(importlib.import_module(_LEARNING[name]), name)
+    raise AttributeError(f"module 'pointfield' has no attribute {name!r}")
+
 
 __all__ = [
     "FormatError",
@@ -18,6 +34,9 @@ __all__ = [
     "PointfieldError",
     "Records",
     "__version__",
+    "classify",
+    "load_run",
     "read",
+    "segment",
     "write",
 ]

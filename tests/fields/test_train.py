@@ -7,8 +7,8 @@ import torch
 
 from pointfield.cli import main
 from pointfield.errors import PointfieldError
-from pointfield.fields.train import evaluate, train
-from pointfield.fields.views import render
+from pointfield.fields.run import evaluate, render
+from pointfield.fields.train import train
 from pointfield.scenes import make_scene
 
 TINY = dict(batch_rays=128, steps=4, eval_every=2, cube_views=12, cube_size=12, device="cpu",
@@ -149,7 +149,7 @@ def test_render_writes_mp4_when_imageio_ffmpeg_is_installed(tiny_run, tmp_path):
 
 
 def test_lego_at_100_pixels_holds_every_tenth_view_out(shared_data):
-    from pointfield.fields.train import open_scene, training_and_heldout
+    from pointfield.scenes.heldout import open_scene, training_and_heldout
 
     scene = open_scene(shared_data / "nerf" / "lego_blender", downscale=8, holdout_every=10, background="white")
     train_frames, heldout = training_and_heldout(scene)

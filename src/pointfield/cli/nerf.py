@@ -1,8 +1,8 @@
 """``pointfield nerf train|eval|render|exercise``: neural radiance fields (TinyNeRF, NeRF).
 
 Each subcommand calls the Python function of the same name and arguments:
-:func:`pointfield.fields.train.train`, :func:`pointfield.fields.train.evaluate`,
-:func:`pointfield.fields.views.render`, :func:`pointfield.fields.exercise.exercise`. torch is
+:func:`pointfield.fields.train.train`, :func:`pointfield.fields.run.evaluate`,
+:func:`pointfield.fields.run.render`, :func:`pointfield.exercises.tinynerf.exercise`. torch is
 imported only when a subcommand runs, so other commands start fast.
 """
 
@@ -107,7 +107,7 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def run_eval(args: argparse.Namespace) -> int:
-    from pointfield.fields.train import evaluate
+    from pointfield.fields.run import evaluate
 
     metrics = evaluate(args.run_dir, device=args.device)
     if args.json:
@@ -119,7 +119,7 @@ def run_eval(args: argparse.Namespace) -> int:
 
 
 def run_render(args: argparse.Namespace) -> int:
-    from pointfield.fields.views import render
+    from pointfield.fields.run import render
 
     result = render(args.run_dir, path=args.path, frames=args.frames, out=args.out, device=args.device)
     print(f"wrote {result['frames']} frames ({result['path']}) to {result['out']}")
@@ -127,7 +127,7 @@ def run_render(args: argparse.Namespace) -> int:
 
 
 def run_exercise(args: argparse.Namespace) -> int:
-    from pointfield.fields.exercise import exercise
+    from pointfield.exercises.tinynerf import exercise
 
     result = exercise(args.out, epochs=args.epochs, device=args.device, seed=args.seed, progress=args.progress)
     reached = result["recognisable_epoch"]

@@ -1,8 +1,8 @@
 """``pointfield splat train|render|export``: 3D Gaussian splatting on any device.
 
 Each subcommand calls the Python function of the same name and arguments in
-:mod:`pointfield.splats.train`. torch is imported only when a subcommand runs, so other
-commands start fast.
+:mod:`pointfield.splats.train` (train) and :mod:`pointfield.splats.run` (render, export). torch
+is imported only when a subcommand runs, so other commands start fast.
 """
 
 from __future__ import annotations
@@ -91,7 +91,7 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def run_render(args: argparse.Namespace) -> int:
-    from pointfield.splats.train import render
+    from pointfield.splats.run import render
 
     result = render(args.source, scene=args.scene, downscale=args.downscale, path=args.path,
                     frames=args.frames, out=args.out, device=args.device, rasterizer=args.rasterizer)
@@ -101,7 +101,7 @@ def run_render(args: argparse.Namespace) -> int:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    from pointfield.splats.train import export
+    from pointfield.splats.run import export
 
     result = export(args.run_dir, args.out)
     print(f"wrote {result['splats']:,} splats (SH degree {result['sh_degree']}) to {result['out']}")

@@ -23,7 +23,13 @@ from typing import Any
 
 import numpy as np
 
+from pointfield.atomic import atomic_path
 from pointfield.errors import PointfieldError
+from pointfield.fields.train import train
+from pointfield.scenes.synthetic import split_indices
+from pointfield.training import RunDirectory
+from pointfield.viz.render import image_grid, save_image
+from pointfield.viz.views import to_uint8
 
 EXERCISE_VIEWS = 48
 EXERCISE_SIZE = 20
@@ -47,9 +53,6 @@ def exercise(
     progress: bool = True,
 ) -> dict[str, Any]:
     """Train TinyNeRF on the cube for ``epochs`` epochs and write ``out/REPORT.md``; returns its numbers."""
-    from pointfield.fields.train import to_uint8, train
-    from pointfield.viz.render import image_grid, save_image
-
     out = Path(out)
     if (out / "run").exists():
         raise PointfieldError(f"{out} already holds an exercise run; choose another --out")
@@ -65,7 +68,7 @@ def exercise(
         epoch = round(record["epochs"])
         if epoch in strip_epochs:
             _, rendered, truth = renders[0]
-            strip[epoch] = rendered["color"]
+            strip[epoch] = rendered["rgb"]
             if not truth_image:
                 truth_image.append(truth)
 
@@ -75,8 +78,6 @@ def exercise(
         learning_rate=EXERCISE_LEARNING_RATE, model_options={"samples": EXERCISE_SAMPLES},
         progress=progress, cube_views=views, cube_size=size, on_evaluate=keep_strip,
     )
-    from pointfield.training import RunDirectory
-
     history = RunDirectory(out / "run").read_metrics_log()
     by_epoch = {round(record["epochs"]): record for record in history}
     recognisable = next((e for e, r in sorted(by_epoch.items()) if r["psnr"] >= RECOGNISABLE_PSNR), None)
@@ -104,14 +105,10 @@ def exercise(
 
 
 def _training_rays(views: int, size: int) -> int:
-    from pointfield.scenes.synthetic import split_indices
-
     return len(split_indices(views)["train"]) * size * size
 
 
 def _write_report(out: Path, result: dict[str, Any], strip_epochs: list[int], epochs: int) -> None:
-    from pointfield.atomic import atomic_path
-
     final = result["final"]
     lines = [
         "# TinyNeRF on the synthetic coloured cube",

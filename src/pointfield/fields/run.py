@@ -1,0 +1,120 @@
+"""A trained radiance field opened for use: :class:`FieldRun`, and rendering a field into cameras.
+
+Every pixel of a camera is a ray (:meth:`pointfield.scenes.Cameras.rays`) marched between the
+scene's nearest ``near`` and farthest ``far`` bound (:func:`pointfield.scenes.heldout.ray_bounds`),
+rendered without gradients in chunks of :data:`RENDER_CHUNK` rays, at the samplers' bin centres
+(no jitter), so renders are repeatable.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import torch
+from torch import nn
+
+from pointfield.devices import pick_device
+from pointfield.errors import PointfieldError
+from pointfield.fields.field import RadianceField
+from pointfield.fields.models import MODELS, build_model
+from pointfield.fields.nerf import render_in_chunks
+from pointfield.fields.rays import RayBundle
+from pointfield.scenes.cameras import Cameras
+from pointfield.scenes.heldout import View, ray_bounds
+from pointfield.scenes.run import SceneRun
+from pointfield.scenes.scene import Scene
+from pointfield.training.lifecycle import restore_model
+from pointfield.training.run import RunDirectory
+
+TASK = "nerf"
+RENDER_CHUNK = 16384
+
+
+def identity_of(config: dict[str, Any]) -> dict[str, Any]:
+    """What a NeRF run's checkpoints must match: the model and its options."""
+    return {"task": TASK, "model": config["model"], "model_options": config.get("model_options", {})}
+
+
+def build_field(config: dict[str, Any], device: torch.device) -> RadianceField:
+    """The (untrained) model a run's config describes, on ``device``."""
+    try:
+        return build_model(config["model"], **config.get("model_options", {})).to(device)
+    except (TypeError, ValueError) as error:
+        raise PointfieldError(f"model options do not fit model {config['model']!r} ({error})") from None
+
+
+def scene_depth_bounds(scene: Scene) -> tuple[float, float]:
+    """The nearest ``near`` and farthest ``far`` over the scene's cameras: where any camera's rays are marched."""
+    bounds = ray_bounds(scene)
+    return float(bounds[:, 0].min()), float(bounds[:, 1].max())
+
+
+@torch.no_grad()
+def render_field(
+    model: nn.Module, cameras: Cameras, index: int, near: float, far: float, background: torch.Tensor,
+    chunk: int = RENDER_CHUNK,
+) -> View:
+    """Camera ``index`` rendered by ``model``: ``rgb`` ``(H, W, 3)``, ``depth`` and ``opacity`` ``(H, W)``."""
+    device = background.device
+    rays = cameras.rays(index).reshape(-1)
+    count = rays.shape[0]
+    bundle = RayBundle(
+        rays.origins.float().to(device), rays.directions.float().to(device),
+        torch.full((count,), near, device=device), torch.full((count,), far, device=device),
+    )
+    was_training = model.training
+    model.eval()
+    out = render_in_chunks(model, bundle, background, chunk=chunk)
+    model.train(was_training)
+    height, width = int(cameras.height[index]), int(cameras.width[index])
+    return {
+        "rgb": out["rgb"].clamp(0, 1).reshape(height, width, 3),
+        "depth": out["depth"].reshape(height, width),
+        "opacity": out["opacity"].reshape(height, width),
+    }
+
+
+class FieldRun(SceneRun):
+    """A trained TinyNeRF, NeRF or hash-grid field: renders any camera of its scene's space."""
+
+    tasks = (TASK,)
+
+    @classmethod
+    def open(cls, directory: RunDirectory, config: dict[str, Any], device: torch.device) -> FieldRun:
+        if config.get("model") not in MODELS:
+            raise PointfieldError(f"{directory.path}: not a NeRF run (model {config.get('model')!r})")
+        model = restore_model(directory, build_field(config, device), identity_of(config), device)
+        return cls(directory, config, model, device)
+
+    def render_one(self, cameras: Cameras, index: int) -> View:
+        near, far = scene_depth_bounds(self.scene)
+        return render_field(self.module, cameras, index, near, far, self.background)
+
+
+def open_run(run: str | os.PathLike[str], device: str | None = None) -> FieldRun:
+    """The NeRF run in folder ``run``, opened on ``device``."""
+    directory = RunDirectory(run)
+    config = directory.read_config()
+    if config.get("task") != TASK:
+        raise PointfieldError(
+            f"{directory.path}: not a NeRF run (task {config.get('task')!r}, model {config.get('model')!r})"
+        )
+    return FieldRun.open(directory, config, pick_device(device))
+
+
+def evaluate(run: str | os.PathLike[str], device: str | None = None) -> dict[str, Any]:
+    """PSNR (mean of per-view PSNR) and SSIM of a trained run on its held-out views (``nerf eval``)."""
+    return open_run(run, device).evaluate()
+
+
+def render(
+    run: str | os.PathLike[str],
+    *,
+    path: str = "orbit",
+    frames: int | None = None,
+    out: str | os.PathLike[str] = "render.gif",
+    device: str | None = None,
+) -> dict[str, Any]:
+    """Render a trained run along ``path`` into ``out`` (``.gif``, ``.mp4`` or a folder): ``nerf render``."""
+    return open_run(run, device).render_path(path, frames=frames, out=out)

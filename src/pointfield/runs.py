@@ -1,0 +1,46 @@
+"""``load_run``: any run folder pointfield wrote, opened as the :class:`~pointfield.training.Run` of its kind.
+
+=========================  ====================================  =====================================
+``config.json`` task       opened as                             what it does besides ``metrics``
+=========================  ====================================  =====================================
+classify, segment          :class:`~pointfield.clouds.tasks.CloudRun`   ``evaluate(data)``, ``predict(files)``
+nerf (tiny, nerf, ngp)     :class:`~pointfield.fields.run.FieldRun`     ``render(cameras)``, ``evaluate()``
+splat                      :class:`~pointfield.splats.run.SplatRun`     ``render(cameras)``, ``evaluate()``
+=========================  ====================================  =====================================
+
+Example::
+
+    import pointfield
+    run = pointfield.load_run("runs/lego-ngp")
+    views = run.render(run.scene.cameras[:2], outputs=("rgb", "depth", "opacity"))
+"""
+
+from __future__ import annotations
+
+import os
+
+from pointfield.clouds.tasks import CloudRun
+from pointfield.devices import pick_device
+from pointfield.errors import PointfieldError
+from pointfield.fields.run import FieldRun
+from pointfield.splats.run import SplatRun
+from pointfield.training.run import Run, RunDirectory
+
+RUN_CLASSES: tuple[type[Run], ...] = (CloudRun, FieldRun, SplatRun)
+
+
+def load_run(path: str | os.PathLike[str], device: str | None = None) -> Run:
+    """The run in folder ``path``, its model restored from the last checkpoint, on ``device``.
+
+    Works for finished runs and for runs still training or killed (their last checkpoint).
+    A folder that is not a run, or a checkpoint that does not match the run's config, raises
+    :class:`~pointfield.PointfieldError` saying so.
+    """
+    directory = RunDirectory(path)
+    config = directory.read_config()
+    task = config.get("task")
+    for run_class in RUN_CLASSES:
+        if task in run_class.tasks:
+            return run_class.open(directory, config, pick_device(device))
+    known = ", ".join(name for run_class in RUN_CLASSES for name in run_class.tasks)
+    raise PointfieldError(f"{directory.path}: a run of task {task!r}, which this pointfield cannot open ({known})")

@@ -1,0 +1,170 @@
+"""Training and held-out views of a scene, and the one evaluation every scene model gets.
+
+Every scene model (TinyNeRF, NeRF, the hash-grid field, Gaussian splats) is trained on the
+"train" split of a scene and scored on its "test" split (else "val", else every N-th training
+view held out with ``holdout_every``). The score is the same for every model, during training,
+after it and in the benchmarks (:func:`heldout_scores`):
+
+- PSNR: the mean over held-out views of each view's PSNR, ``10 log10(1 / MSE_view)`` with
+  colours in [0, 1] (as NeRF papers and nerfstudio report it: :func:`pointfield.metrics.mean_psnr`);
+- SSIM: the mean over views of :func:`pointfield.metrics.ssim` (Gaussian window 11, sigma 1.5).
+
+A model is scored through its renderer, a callable ``render(cameras) -> [view, ...]`` with one
+``{"rgb": (H, W, 3), "depth": (H, W), "opacity": (H, W)}`` dict of tensors per camera -- what
+:meth:`SceneRun.render` gives -- so nothing here knows which model it scores.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+
+from pointfield.metrics import mean_psnr, ssim
+from pointfield.scenes.cameras import Cameras
+from pointfield.scenes.formats import read_scene
+from pointfield.scenes.scene import Scene, SceneError
+from pointfield.scenes.synthetic import synthetic_scene
+
+OUTPUTS = ("rgb", "depth", "opacity")
+"""What a scene model renders: colour ``(H, W, 3)`` in [0, 1], expected depth ``(H, W)`` along
+the ray in scene units (0 where nothing is hit), accumulated opacity ``(H, W)`` in [0, 1]."""
+
+View = dict[str, torch.Tensor]
+Renderer = Callable[[Cameras], list[View]]
+HeldoutRender = tuple[int, dict[str, np.ndarray], np.ndarray]
+"""``(frame index, {"rgb", "depth", "opacity"} as numpy, ground-truth image)``."""
+
+
+def open_scene(
+    scene: str | os.PathLike[str] | None,
+    downscale: int = 1,
+    holdout_every: int | None = None,
+    background: str | Sequence[float] | None = None,
+    cube_views: int = 100,
+    cube_size: int = 100,
+) -> Scene:
+    """The scene to train on: read from ``scene`` (any format), or the synthetic cube when None.
+
+    The cube is ``cube_views`` views of ``cube_size`` x ``cube_size`` pixels
+    (:func:`pointfield.scenes.synthetic_scene`).
+    """
+    if scene is None:
+        opened = synthetic_scene("cube", views=cube_views, size=cube_size)
+    else:
+        opened = read_scene(scene)
+    if int(downscale) != downscale or downscale < 1:
+        raise SceneError(f"--downscale must be a positive integer, got {downscale}")
+    opened = opened.downscaled(int(downscale))
+    if holdout_every is not None:
+        opened = opened.with_holdout(holdout_every)
+    if background is not None:
+        opened = opened.with_background(background)
+    return opened
+
+
+def open_scene_of(config: dict[str, Any]) -> Scene:
+    """The scene a run's ``config.json`` was trained on."""
+    return open_scene(
+        config["scene"], config["downscale"], config["holdout_every"], config["background"],
+        config.get("cube_views", 100), config.get("cube_size", 100),
+    )
+
+
+def training_and_heldout(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Frame indices to train on and to evaluate on ("test", else "val"), both with images."""
+    where = scene.metadata.get("path", "scene")
+    train_frames = scene.splits.get("train", np.arange(0))
+    train_frames = np.array([i for i in train_frames if scene.frames[i].has_image], dtype=np.int64)
+    if len(train_frames) == 0:
+        raise SceneError(f"{where}: no training views with images")
+    for name in ("test", "val"):
+        held = np.array([i for i in scene.splits.get(name, []) if scene.frames[i].has_image], dtype=np.int64)
+        if len(held):
+            return train_frames, held
+    raise SceneError(
+        f"{where}: no held-out views with images (no test or val split); pass --holdout-every N "
+        f"to hold every N-th training view out"
+    )
+
+
+def ray_bounds(scene: Scene) -> np.ndarray:
+    """Per-frame ``(N, 2)`` near and far distances: the scene's own, else from its bounding box.
+
+    Without ``near_far``, the bounding sphere of ``aabb`` (or of the sparse points) seen from
+    each camera gives ``near = max(d - r, 0.05 d)``, ``far = d + r`` for a camera at distance d
+    from its centre.
+    """
+    if scene.near_far is not None:
+        return np.asarray(scene.near_far, dtype=np.float64)
+    if scene.aabb is not None:
+        box = np.asarray(scene.aabb, dtype=np.float64)
+    elif scene.points is not None and len(scene.points):
+        points = np.asarray(scene.points.points, dtype=np.float64)
+        box = np.percentile(points, [1, 99], axis=0)
+    else:
+        raise SceneError(
+            f"{scene.metadata.get('path', 'scene')}: no near/far bounds, bounding box or points "
+            f"to tell where along the rays the scene is"
+        )
+    centre, radius = box.mean(axis=0), 0.5 * np.linalg.norm(box[1] - box[0])
+    distance = np.linalg.norm(scene.cameras.centers.numpy() - centre, axis=1)
+    return np.stack([np.maximum(distance - radius, 0.05 * distance), distance + radius], axis=1)
+
+
+def depth_range(scene: Scene, views: list[dict[str, np.ndarray]]) -> tuple[float, float]:
+    """Near and far for depth pictures: the scene's bounds, else the rendered depths' 1-99 %."""
+    try:
+        bounds = ray_bounds(scene)
+        return float(bounds[:, 0].min()), float(bounds[:, 1].max())
+    except SceneError:
+        depths = np.concatenate([view["depth"][view["opacity"] > 0.5] for view in views]) if views else []
+        if len(depths) == 0:
+            return 0.0, 1.0
+        near, far = np.percentile(depths, [1, 99])
+        return float(near), float(max(far, near + 1e-6))
+
+
+def as_numpy(view: View) -> dict[str, np.ndarray]:
+    """A rendered view's tensors as float32 numpy arrays (colour and opacity clamped to [0, 1])."""
+    arrays = {name: value.detach().float().cpu().numpy() for name, value in view.items()}
+    for name in ("rgb", "opacity"):
+        if name in arrays:
+            arrays[name] = np.clip(arrays[name], 0, 1)
+    return arrays
+
+
+@torch.no_grad()
+def heldout_scores(
+    render: Renderer, scene: Scene, frames: Sequence[int], keep_renders: bool = False
+) -> tuple[dict[str, float], list[HeldoutRender]]:
+    """PSNR (mean of per-view PSNR) and mean SSIM of ``render`` over held-out ``frames``.
+
+    Returns ``({"psnr", "ssim", "views", "render_seconds_per_view"}, renders)``, with
+    ``renders`` ``[(frame, view arrays, truth)]`` when ``keep_renders`` (else empty). SSIM needs
+    views of at least 11 x 11 pixels; smaller ones give NaN.
+    """
+    images, truths, similarities, renders = [], [], [], []
+    started = time.perf_counter()
+    for frame in frames:
+        view = as_numpy(render(scene.cameras[[int(frame)]])[0])
+        truth = scene.image(int(frame))
+        images.append(view["rgb"])
+        truths.append(truth)
+        if min(truth.shape[:2]) >= 11:
+            similarities.append(float(ssim(view["rgb"], truth)))
+        if keep_renders:
+            renders.append((int(frame), view, truth))
+    seconds = time.perf_counter() - started
+    scores = {
+        "psnr": mean_psnr(images, truths),
+        "ssim": float(np.mean(similarities)) if similarities else math.nan,
+        "views": len(frames),
+        "render_seconds_per_view": seconds / max(len(frames), 1),
+    }
+    return scores, renders

@@ -1,0 +1,102 @@
+"""A trained scene model opened for use: one way to render any camera, whatever the model.
+
+:class:`SceneRun` is what :func:`pointfield.load_run` gives for a radiance-field run (tiny,
+nerf, ngp) or a splat run. Each renders cameras the same way::
+
+    run = pointfield.load_run("runs/lego-ngp")
+    views = run.render(run.scene.cameras[[0, 5]], outputs=("rgb", "depth"))
+    views[0]["rgb"].shape          # (H, W, 3), float in [0, 1], on run.device
+    run.evaluate()                 # {"psnr": ..., "ssim": ...} on the held-out views
+    run.render_path("orbit", frames=60, out="turntable.gif")
+
+The outputs are those of :data:`pointfield.scenes.heldout.OUTPUTS`: ``rgb`` ``(H, W, 3)``,
+``depth`` ``(H, W)`` (expected distance along the ray, in scene units; 0 where nothing is hit)
+and ``opacity`` ``(H, W)``. The viewer and the geometry exporters are written against this.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from pointfield.errors import PointfieldError
+from pointfield.scenes.cameras import Cameras
+from pointfield.scenes.heldout import (
+    OUTPUTS,
+    View,
+    as_numpy,
+    depth_range,
+    heldout_scores,
+    open_scene,
+    open_scene_of,
+    training_and_heldout,
+)
+from pointfield.scenes.paths import path_cameras
+from pointfield.scenes.scene import Scene
+from pointfield.training.run import Run
+from pointfield.viz.views import check_views_output, write_views
+
+
+class SceneRun(Run):
+    """Base of the field and splat runs: subclasses implement :meth:`render_one`."""
+
+    @cached_property
+    def scene(self) -> Scene:
+        """The scene the run was trained on (read when first asked for)."""
+        return open_scene_of(self.config)
+
+    @property
+    def background(self) -> torch.Tensor:
+        """``(3,)`` colour behind everything, on the run's device: the training scene's."""
+        return torch.as_tensor(self.scene.background, dtype=torch.float32, device=self.device)
+
+    def render_one(self, cameras: Cameras, index: int) -> View:
+        """Camera ``index`` of ``cameras`` rendered: every output of :data:`OUTPUTS`."""
+        raise NotImplementedError
+
+    @torch.no_grad()
+    def render(self, cameras: Cameras, outputs: Sequence[str] = OUTPUTS) -> list[View]:
+        """Render every camera: one ``{output: tensor}`` dict per camera (see the module doc)."""
+        unknown = [name for name in outputs if name not in OUTPUTS]
+        if unknown:
+            raise PointfieldError(f"unknown render outputs {unknown}; choose from {', '.join(OUTPUTS)}")
+        views = []
+        for index in range(len(cameras)):
+            view = self.render_one(cameras, index)
+            views.append({name: view[name] for name in outputs})
+        return views
+
+    def evaluate(self) -> dict[str, Any]:
+        """PSNR (mean of per-view PSNR) and SSIM on the run's held-out views."""
+        _, heldout = training_and_heldout(self.scene)
+        scores, _ = heldout_scores(self.render, self.scene, heldout)
+        return {"run": str(self.path), "model": self.model_name, **scores}
+
+    def render_path(
+        self,
+        path: str = "orbit",
+        *,
+        frames: int | None = None,
+        out: str | os.PathLike[str] = "render.gif",
+        scene: str | os.PathLike[str] | None = None,
+        downscale: int = 1,
+    ) -> dict[str, Any]:
+        """Render a camera ``path`` (orbit, spiral, dataset: :mod:`pointfield.scenes.paths`) into ``out``.
+
+        ``out`` ending in ``.gif`` / ``.mp4`` gets a video of colour | depth | opacity panels,
+        anything else a folder of PNGs. The path goes round the training scene unless ``scene``
+        (read at ``downscale``) is given.
+        """
+        out = Path(out)
+        check_views_output(out)  # before anything is rendered
+        around = self.scene if scene is None else open_scene(scene, downscale)
+        cameras = path_cameras(around, path, frames)
+        views = [as_numpy(view) for view in self.render(cameras)]
+        near, far = depth_range(around, views)
+        write_views(views, out, near, far)
+        return {"out": str(out), "frames": len(views), "path": path}

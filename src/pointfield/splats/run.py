@@ -1,0 +1,180 @@
+"""Rendering, evaluating and exporting Gaussian splats: a trained run, or a splat ``.ply``.
+
+========================================================  ====================================
+``pointfield splat render RUN|scene.ply [--scene S] ...``  :func:`render`
+``pointfield splat export RUN --out scene.ply``            :func:`export`
+========================================================  ====================================
+
+:class:`SplatRun` is what :func:`pointfield.load_run` opens for a splat run; it renders any
+camera as every scene run does (:class:`~pointfield.scenes.run.SceneRun`). Depth is the
+expected depth of the covered part of each pixel (the rasterizer's alpha-weighted depth over
+its alpha), as for the fields.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from pointfield.devices import pick_device
+from pointfield.errors import PointfieldError
+from pointfield.scenes.cameras import Cameras
+from pointfield.scenes.heldout import View, open_scene
+from pointfield.scenes.run import SceneRun
+from pointfield.scenes.scene import Scene
+from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
+from pointfield.splats.gsplat_rasterizer import choose_rasterizer, rasterization_gsplat
+from pointfield.splats.ply import read_splats, write_splats
+from pointfield.splats.rasterizer import rasterization
+from pointfield.training.checkpoints import load_checkpoint
+from pointfield.training.run import RunDirectory
+
+TASK = "splat"
+
+
+def camera_matrices(cameras: Cameras, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """gsplat's ``viewmats`` (C, 4, 4) and ``Ks`` (C, 3, 3), float32 on ``device``."""
+    if cameras.model != "PINHOLE" and bool(cameras.distortion.abs().max() > 0):
+        raise PointfieldError(
+            f"splats render pinhole cameras; these are {cameras.model} with distortion "
+            f"(undistort the images first)"
+        )
+    return (cameras.world_to_camera().float().to(device), cameras.intrinsic_matrices().float().to(device))
+
+
+def render_views(
+    gaussians: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int,
+    background: torch.Tensor, sh_degree: int | None = None, rasterizer: str = "pointfield",
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
+    """Render ``gaussians`` into cameras: ``(colors (C, H, W, 3), depths, alphas, meta)``.
+
+    ``rasterizer``: "pointfield" (:func:`~pointfield.splats.rasterizer.rasterization`), "gsplat"
+    or "auto" (:mod:`pointfield.splats.gsplat_rasterizer`).
+    """
+    chosen = choose_rasterizer(rasterizer, gaussians.means.device)
+    return (rasterization_gsplat if chosen == "gsplat" else rasterization)(
+        gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities,
+        gaussians.sh_coefficients, viewmats, Ks, width, height,
+        sh_degree=gaussians.active_sh_degree if sh_degree is None else sh_degree,
+        backgrounds=background,
+    )
+
+
+@torch.no_grad()
+def render_camera(
+    gaussians: Gaussians, cameras: Cameras, index: int, background: torch.Tensor, rasterizer: str = "pointfield"
+) -> View:
+    """Camera ``index`` rendered: ``rgb`` ``(H, W, 3)``, expected ``depth`` and ``opacity`` ``(H, W)``."""
+    device = gaussians.means.device
+    viewmats, Ks = camera_matrices(cameras[[index]], device)
+    width, height = int(cameras.width[index]), int(cameras.height[index])
+    colors, depths, alphas, _ = render_views(gaussians, viewmats, Ks, width, height, background,
+                                             rasterizer=rasterizer)
+    return {
+        "rgb": colors[0].clamp(0, 1),
+        "depth": depths[0] / alphas[0].clamp_min(1e-6),
+        "opacity": alphas[0].clamp(0, 1),
+    }
+
+
+def scene_scale(scene: Scene) -> float:
+    """1.1 x the largest distance of a camera centre from their mean (the 3DGS "extent")."""
+    centres = scene.cameras.centers.double().numpy()
+    return 1.1 * float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) or 1.0
+
+
+class SplatRun(SceneRun):
+    """A trained splat run: its Gaussians (all SH degrees the run reached) render any camera."""
+
+    tasks = (TASK,)
+
+    def __init__(self, directory: RunDirectory, config: dict[str, Any], module: Gaussians, device: torch.device,
+                 rasterizer: str = "auto"):
+        super().__init__(directory, config, module, device)
+        self.rasterizer = choose_rasterizer(rasterizer, device)
+
+    @classmethod
+    def open(cls, directory: RunDirectory, config: dict[str, Any], device: torch.device,
+             rasterizer: str = "auto") -> SplatRun:
+        payload = load_checkpoint(directory.checkpoint, {"task": TASK})
+        state = payload["model"]
+        missing = [name for name in PARAMETER_NAMES if name not in state]
+        if missing:
+            raise PointfieldError(f"{directory.checkpoint}: no {', '.join(missing)} in the checkpoint")
+        try:
+            gaussians = Gaussians(**{name: state[name].float() for name in PARAMETER_NAMES})
+        except ValueError as error:
+            raise PointfieldError(f"{directory.checkpoint}: {error}") from None
+        extra = state.get("_extra_state")
+        if isinstance(extra, dict) and "active_sh_degree" in extra:
+            gaussians.active_sh_degree = int(extra["active_sh_degree"])
+        return cls(directory, config, gaussians.to(device).eval(), device, rasterizer)
+
+    @property
+    def gaussians(self) -> Gaussians:
+        return self.module
+
+    def render_one(self, cameras: Cameras, index: int) -> View:
+        return render_camera(self.gaussians, cameras, index, self.background, self.rasterizer)
+
+
+def open_run(run: str | os.PathLike[str], device: str | None = None, rasterizer: str = "auto") -> SplatRun:
+    """The splat run in folder ``run``, opened on ``device``."""
+    directory = RunDirectory(run)
+    config = directory.read_config()
+    if config.get("task") != TASK:
+        raise PointfieldError(f"{directory.path}: not a splat run (task {config.get('task')!r})")
+    return SplatRun.open(directory, config, pick_device(device), rasterizer)
+
+
+def export(run: str | os.PathLike[str], out: str | os.PathLike[str]) -> dict[str, Any]:
+    """Write a trained run's splats as a standard splat ``.ply``."""
+    gaussians = open_run(run, "cpu").gaussians
+    write_splats(out, gaussians)
+    return {"out": str(out), "splats": len(gaussians), "sh_degree": gaussians.sh_degree}
+
+
+class _SplatFile(SplatRun):
+    """A splat ``.ply`` rendered like a run, around the cameras of a scene given beside it."""
+
+    def __init__(self, path: Path, gaussians: Gaussians, scene: Scene, device: torch.device, rasterizer: str):
+        super().__init__(RunDirectory(path), {"task": TASK, "model": "splat file"}, gaussians, device, rasterizer)
+        self.scene = scene  # a file has no training scene of its own
+
+
+def render(
+    source: str | os.PathLike[str],
+    *,
+    scene: str | os.PathLike[str] | None = None,
+    downscale: int = 1,
+    path: str = "orbit",
+    frames: int | None = None,
+    out: str | os.PathLike[str] = "render.gif",
+    device: str | None = None,
+    rasterizer: str = "auto",
+) -> dict[str, Any]:
+    """Render a run folder or a splat ``.ply`` along a camera path into ``out``.
+
+    ``path``: orbit, spiral or dataset (:mod:`pointfield.scenes.paths`). A run uses the scene
+    it was trained on unless ``scene`` is given; a ``.ply`` needs ``scene`` for its cameras (at
+    ``downscale``). ``out`` ending in ``.gif`` / ``.mp4`` gets a video of colour | depth |
+    opacity panels, anything else a folder of PNGs. ``rasterizer``: "pointfield", "gsplat" or
+    "auto" (gsplat where it can run).
+    """
+    source = Path(source)
+    if source.is_dir():
+        opened = open_run(source, device, rasterizer)
+    else:
+        if scene is None:
+            raise PointfieldError(f"{source}: a splat file has no cameras; pass --scene SCENE to render it")
+        torch_device = pick_device(device)
+        chosen = choose_rasterizer(rasterizer, torch_device)  # before anything is read or written
+        opened = _SplatFile(source, read_splats(source).to(torch_device), open_scene(scene, downscale),
+                            torch_device, chosen)
+        scene = None
+    result = opened.render_path(path, frames=frames, out=out, scene=scene, downscale=downscale)
+    return {**result, "splats": len(opened.gaussians), "rasterizer": opened.rasterizer}
