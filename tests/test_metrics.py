@@ -1,4 +1,4 @@
-"""Scores from confusion matrices."""
+"""Scores from confusion matrices, and PSNR / SSIM of rendered views (SSIM checked against scikit-image)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,11 @@ from pointfield.metrics import (
     confusion_matrix,
     mean_class_accuracy,
     mean_iou,
+    mean_psnr,
+    mean_ssim,
+    psnr,
+    psnr_from_mse,
+    ssim,
 )
 
 
@@ -53,3 +58,93 @@ def test_empty_confusions_give_nan_not_errors():
     empty = np.zeros((2, 2), np.int64)
     assert math.isnan(accuracy(empty)) and math.isnan(mean_class_accuracy(empty))
     assert math.isnan(mean_iou(empty))
+
+
+# -- images ------------------------------------------------------------------------------------------
+
+
+def _pair(shape, noise=0.1, seed=0):
+    rng = np.random.default_rng(seed)
+    clean = rng.random(shape)
+    return clean, np.clip(clean + noise * rng.standard_normal(shape), 0, 1)
+
+
+def test_psnr_is_ten_log10_of_inverse_mse():
+    a = np.zeros((4, 4, 3))
+    b = np.full((4, 4, 3), 0.1)
+    assert psnr(b, a) == pytest.approx(20.0)
+    assert psnr(a, a) == math.inf
+    assert psnr_from_mse(0.01) == pytest.approx(20.0)
+
+
+def test_mean_psnr_is_the_mean_of_per_view_psnr():
+    truths = [np.zeros((8, 8, 3))] * 3
+    images = [np.full((8, 8, 3), level) for level in (0.1, 0.01, 0.05)]
+    per_view = [psnr(image, truth) for image, truth in zip(images, truths)]
+    assert mean_psnr(images, truths) == pytest.approx(np.mean(per_view))
+
+
+def test_mean_psnr_differs_from_the_psnr_of_the_mean_mse():
+    truths = [np.zeros((8, 8))] * 2
+    images = [np.full((8, 8), 0.1), np.full((8, 8), 0.01)]  # MSE 1e-2 (20 dB) and 1e-4 (40 dB)
+    assert mean_psnr(images, truths) == pytest.approx(30.0)
+    assert psnr_from_mse((1e-2 + 1e-4) / 2) == pytest.approx(22.97, abs=0.01)
+
+
+def test_mean_psnr_refuses_unmatched_or_no_views():
+    with pytest.raises(ValueError, match="2 images but 1"):
+        mean_psnr([np.zeros((4, 4))] * 2, [np.zeros((4, 4))])
+    with pytest.raises(ValueError, match="no views"):
+        mean_psnr([], [])
+
+
+def test_ssim_of_an_image_with_itself_is_one():
+    a, _ = _pair((16, 20, 3))
+    assert float(ssim(a, a)) == pytest.approx(1.0)
+    assert float(ssim(torch.from_numpy(a).float(), torch.from_numpy(a).float())) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("shape", [(32, 40, 3), (11, 13), (50, 30, 1)])
+def test_ssim_agrees_with_scikit_image(shape):
+    metrics = pytest.importorskip("skimage.metrics", reason="scikit-image not installed")
+    a, b = _pair(shape)
+    channel_axis = -1 if len(shape) == 3 else None
+    expected = metrics.structural_similarity(
+        a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1, channel_axis=channel_axis
+    )
+    assert abs(float(ssim(a, b)) - expected) < 1e-6
+    assert abs(float(ssim(torch.from_numpy(a).float(), b)) - expected) < 1e-6  # a float32 render, float64 truth
+
+
+def test_ssim_of_float32_tensors_stays_float32_and_close_to_float64():
+    a, b = _pair((24, 24, 3))
+    single = ssim(torch.from_numpy(a).float(), torch.from_numpy(b).float())
+    assert single.dtype == torch.float32
+    assert float(single) == pytest.approx(float(ssim(a, b)), abs=1e-5)
+
+
+def test_ssim_gradient_flows_to_the_image():
+    a, b = _pair((20, 17, 3))
+    image = torch.from_numpy(a).requires_grad_()
+    similarity = ssim(image, torch.from_numpy(b))
+    similarity.backward()
+    assert torch.isfinite(image.grad).all() and image.grad.abs().sum() > 0
+    # Moving the image along the gradient raises SSIM: the gradient is the metric's own.
+    with torch.no_grad():
+        assert float(ssim(image + 1e-3 * image.grad.sign(), b)) > float(similarity)
+
+
+def test_mean_ssim_is_the_mean_of_per_view_ssim():
+    pairs = [_pair((16, 16, 3), seed=seed) for seed in range(3)]
+    images, truths = [p[0] for p in pairs], [p[1] for p in pairs]
+    assert mean_ssim(images, truths) == pytest.approx(np.mean([float(ssim(a, b)) for a, b in pairs]))
+
+
+def test_ssim_refuses_images_smaller_than_its_window():
+    with pytest.raises(ValueError, match="at least 11"):
+        ssim(np.zeros((8, 8)), np.zeros((8, 8)))
+
+
+def test_images_of_different_shapes_are_an_error():
+    with pytest.raises(ValueError, match="differ in shape"):
+        psnr(np.zeros((4, 4, 3)), np.zeros((4, 5, 3)))

@@ -8,11 +8,11 @@ import torch
 
 from pointfield.cli import main
 from pointfield.errors import PointfieldError
-from pointfield.image_metrics import ssim as ssim_metric
+from pointfield.metrics import ssim
 from pointfield.scenes import make_scene
 from pointfield.splats.densification import DefaultStrategy
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
-from pointfield.splats.loss import splat_loss, ssim
+from pointfield.splats.loss import splat_loss
 from pointfield.splats.ply import read_splats
 from pointfield.splats.rasterizer import rasterization
 from pointfield.splats.train import train
@@ -23,11 +23,12 @@ def tiny_scene(tmp_path_factory):
     return make_scene("cube", tmp_path_factory.mktemp("scenes") / "cube", views=6, size=24)
 
 
-def test_differentiable_ssim_equals_the_metric():
+def test_loss_is_the_3dgs_mix_of_l1_and_the_metrics_ssim():
     generator = torch.Generator().manual_seed(0)
     a = torch.rand(20, 17, 3, generator=generator, dtype=torch.float64)
     b = (a + 0.1 * torch.rand(20, 17, 3, generator=generator, dtype=torch.float64)).clamp(0, 1)
-    assert float(ssim(a, b)) == pytest.approx(ssim_metric(a, b), abs=1e-12)
+    expected = 0.8 * float((a - b).abs().mean()) + 0.2 * (1 - float(ssim(a, b)))
+    assert float(splat_loss(a, b)) == pytest.approx(expected, abs=1e-12)
     a.requires_grad_()
     splat_loss(a, b).backward()
     assert torch.isfinite(a.grad).all() and a.grad.abs().sum() > 0
