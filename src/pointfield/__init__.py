@@ -16,7 +16,7 @@ from pointfield.errors import FormatError, PointfieldError  # noqa: E402
 from pointfield.version import __version__  # noqa: E402
 
 # The learning half needs torch; it is imported on first use so that reading a cloud stays quick.
-_LEARNING = {"load_run": "pointfield.runs", "classify": "pointfield.clouds.tasks", "segment": "pointfield.clouds.tasks"}
+_LEARNING = {"load_run": "pointfield.runs", "classify": "pointfield.clouds.run", "segment": "pointfield.clouds.run"}
 
 
 def __getattr__(name: str) -> Any:

@@ -3,7 +3,7 @@
 =========================  ====================================  =====================================
 ``config.json`` task       opened as                             what it does besides ``metrics``
 =========================  ====================================  =====================================
-classify, segment          :class:`~pointfield.clouds.tasks.CloudRun`   ``evaluate(data)``, ``predict(files)``
+classify, segment          :class:`~pointfield.clouds.run.CloudRun`   ``evaluate(data)``, ``predict(files)``
 nerf (tiny, nerf, ngp)     :class:`~pointfield.fields.run.FieldRun`     ``render(cameras)``, ``evaluate()``
 splat                      :class:`~pointfield.splats.run.SplatRun`     ``render(cameras)``, ``evaluate()``
 =========================  ====================================  =====================================
@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import os
 
-from pointfield.clouds.tasks import CloudRun
+from pointfield.clouds.run import CloudRun
 from pointfield.devices import pick_device
 from pointfield.errors import PointfieldError
 from pointfield.fields.run import FieldRun

@@ -1,7 +1,7 @@
 """``pointfield classify train|eval|predict``: shape classification with the PointNet family.
 
 Each subcommand calls the function of the same name and arguments in
-:mod:`pointfield.clouds.tasks` with ``task="classify"`` (``eval`` calls ``evaluate``). torch is
+:mod:`pointfield.clouds.tasks` (train) and :mod:`pointfield.clouds.run` (eval, predict) with ``task="classify"`` (``eval`` calls ``evaluate``). torch is
 imported only when a subcommand runs, so other commands start fast.
 """
 
@@ -122,9 +122,9 @@ def run_train(args: argparse.Namespace, task: str) -> int:
 
 
 def run_eval(args: argparse.Namespace, task: str) -> int:
-    from pointfield.clouds import tasks
+    from pointfield.clouds import run
 
-    metrics = tasks.evaluate(task, args.run_dir, args.data, device=args.device, on_error=args.on_error)
+    metrics = run.evaluate(task, args.run_dir, args.data, device=args.device, on_error=args.on_error)
     if args.json:
         print(json.dumps(metrics, indent=2))
         return 0
@@ -138,9 +138,9 @@ def run_eval(args: argparse.Namespace, task: str) -> int:
 
 
 def run_predict(args: argparse.Namespace) -> int:
-    from pointfield.clouds import tasks
+    from pointfield.clouds import run
 
-    answers = tasks.predict("classify", args.run_dir, args.files, device=args.device)
+    answers = run.predict("classify", args.run_dir, args.files, device=args.device)
     if args.json:
         print(json.dumps(answers, indent=2))
     else:

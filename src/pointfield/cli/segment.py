@@ -1,7 +1,7 @@
 """``pointfield segment train|eval|predict``: per-point labels with the PointNet family.
 
 Each subcommand calls the function of the same name and arguments in
-:mod:`pointfield.clouds.tasks` with ``task="segment"`` (``eval`` calls ``evaluate``); the training
+:mod:`pointfield.clouds.tasks` (train) and :mod:`pointfield.clouds.run` (eval, predict) with ``task="segment"`` (``eval`` calls ``evaluate``); the training
 options are those of ``pointfield classify train`` plus ``--label-field``.
 """
 
@@ -44,9 +44,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_predict(args: argparse.Namespace) -> int:
-    from pointfield.clouds import tasks
+    from pointfield.clouds import run
 
-    answers = tasks.predict("segment", args.run_dir, args.files, device=args.device, out=args.out)
+    answers = run.predict("segment", args.run_dir, args.files, device=args.device, out=args.out)
     if args.json:
         print(json.dumps(answers, indent=2))
         return 0

@@ -1,18 +1,12 @@
-"""Classification and segmentation of point clouds: what ``pointfield classify`` and
-``pointfield segment`` do, as functions of a task name.
+"""Classification and segmentation of point clouds: the training behind ``pointfield classify train``
+and ``pointfield segment train``, as functions of a task name.
 
 :func:`train` runs a :class:`CloudTask` through the one training lifecycle of
 :mod:`pointfield.training`: the task opens the data (a folder, ModelNet, or the built-in
 synthetic shapes), builds a model from :mod:`pointfield.clouds.models`, and gives the loop the
-batches of an epoch and the loss of a batch. A finished run opens as a :class:`CloudRun`
-(:func:`pointfield.load_run`), which evaluates and predicts; :func:`evaluate` and :func:`predict`
-are the command line's functions over it. ``pointfield.classify`` and ``pointfield.segment``
-are the same three functions with the task filled in::
-
-    import pointfield
-    metrics = pointfield.classify.train(model="pointnet", epochs=20, out="runs/shapes")
-    for answer in pointfield.classify.predict("runs/shapes", ["scan.ply"]):
-        print(answer["file"], answer["class"], answer["probability"])
+batches of an epoch and the loss of a batch. A finished run opens as a
+:class:`~pointfield.clouds.run.CloudRun` (:func:`pointfield.load_run`), which evaluates and
+predicts.
 
 The recipe, the same for every model unless told otherwise:
 
@@ -26,28 +20,19 @@ The recipe, the same for every model unless told otherwise:
   samples, never below 0.01. Running statistics start from mean 0 and variance 1; with
   PyTorch's default 0.1 a layer whose true variance is far from 1 needs hundreds of steps
   before evaluation sees it right, which a short run on a CPU may never take.
-
-Prediction never samples at random: it keeps the ``points`` points that
-:func:`~pointfield.clouds.ops.canonical_sample` chooses from their coordinates, so a file and
-the same file with its points shuffled get the same answer.
 """
 
 from __future__ import annotations
 
-import functools
-import hashlib
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from pointfield.clouds import ops
-from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.datasets import (
     DEFAULT_MESH_POINTS,
     PART_LABEL_FIELD,
@@ -58,7 +43,6 @@ from pointfield.clouds.datasets import (
     default_cache_dir,
     modelnet_source,
 )
-from pointfield.clouds.mesh import Mesh
 from pointfield.clouds.models import MODEL_NAMES, MODEL_OPTIONS, build_model, count_parameters
 from pointfield.clouds.transforms import (
     Compose,
@@ -68,10 +52,8 @@ from pointfield.clouds.transforms import (
     RandomShift,
     SamplePoints,
 )
-from pointfield.clouds.formats import read, write
 from pointfield.clouds.shapes import SyntheticShapes
-from pointfield.devices import pick_device
-from pointfield.errors import FormatError, PointfieldError
+from pointfield.errors import PointfieldError
 from pointfield.metrics import (
     accuracy,
     class_accuracies,
@@ -82,9 +64,8 @@ from pointfield.metrics import (
 )
 from pointfield.training import lifecycle
 from pointfield.training.distributed import shard, wrap
-from pointfield.training.lifecycle import restore_model
 from pointfield.training.loop import TrainingState
-from pointfield.training.run import Run, RunDirectory
+from pointfield.training.run import RunDirectory
 from pointfield.training.task import Step, Task
 from pointfield.version import __version__
 from pointfield.viz.plots import plot_confusion_matrix, plot_training_curves
@@ -167,7 +148,7 @@ def open_data(
     return dataset
 
 
-def _check_not_empty(dataset: CloudDataset, split: str, data: Any) -> None:
+def check_not_empty(dataset: CloudDataset, split: str, data: Any) -> None:
     if len(dataset) == 0:
         where = data if data is not None else "the synthetic shapes"
         raise PointfieldError(f"{where}: no {split} clouds to use")
@@ -219,7 +200,7 @@ class CloudTask(Task):
         config.update(_data_summary(train_set, test_set, config))
         config["world_size"] = distributed.world_size if distributed else 1
         config["device"] = str(device)
-        self.model = _build(config).to(device)
+        self.model = build_cloud_model(config).to(device)
         self.parameters = count_parameters(self.model)
         self.trained = wrap(self.model, distributed, device)
         self.optimizer = torch.optim.Adam(
@@ -265,7 +246,7 @@ class CloudTask(Task):
         self.confusion = confusion_on(
             self.model, self.test_set, self.name, self.config, self.collate, self.device, self.distributed
         )
-        return {f"test_{k}": v for k, v in _scores(self.confusion, self.name).items()}
+        return {f"test_{k}": v for k, v in scores_of(self.confusion, self.name).items()}
 
     def draw(self, run: RunDirectory, history: list[dict[str, Any]]) -> None:
         plot_training_curves(history, run.path / CURVES_PNG, title=_title(self.config))
@@ -276,13 +257,13 @@ class CloudTask(Task):
             confusion = confusion_on(self.model, self.test_set, self.name, self.config, self.collate,
                                      self.device, self.distributed)
         if self.distributed is None or self.distributed.is_main:
-            plot_confusion_matrix(confusion, _label_names(self.config), run.path / CONFUSION_PNG,
+            plot_confusion_matrix(confusion, label_names(self.config), run.path / CONFUSION_PNG,
                                   title=_title(self.config))
             if state.history:
                 self.draw(run, state.history)
         return {
-            **_scores(confusion, self.name),
-            "per_class": _per_class(confusion, self.name, _label_names(self.config)),
+            **scores_of(confusion, self.name),
+            "per_class": per_class_scores(confusion, self.name, label_names(self.config)),
             "epochs": state.epoch,
             "seconds": round(state.seconds, 3),
             "test_samples": len(self.test_set),
@@ -359,11 +340,11 @@ def _open_pair(
         mesh_points=config["mesh_points"], progress=progress,
     )
     train_set = open_data(config["task"], config["data"], "train", **options)
-    _check_not_empty(train_set, "train", config["data"])
+    check_not_empty(train_set, "train", config["data"])
     test_set = open_data(
         config["task"], config["data"], "test", classes=train_set.classes, **options
     )
-    _check_not_empty(test_set, "test", config["data"])
+    check_not_empty(test_set, "test", config["data"])
     if config["task"] == "segment" and not train_set.parts:
         raise PointfieldError(f"{config['data']}: these clouds carry no per-point labels")
     return train_set, test_set
@@ -436,7 +417,7 @@ def confusion_on(
     dist_info: Any = None,
 ) -> np.ndarray:
     """The confusion matrix of ``model`` over ``dataset`` (summed over processes)."""
-    classes = len(_label_names(config))
+    classes = len(label_names(config))
     subset = torch.utils.data.Subset(dataset, shard(len(dataset), dist_info))
     loader = torch.utils.data.DataLoader(
         subset, batch_size=config["batch_size"], shuffle=False, collate_fn=collate
@@ -457,228 +438,16 @@ def confusion_on(
     return confusion
 
 
-def _scores(confusion: np.ndarray, task: str) -> dict[str, float]:
+def scores_of(confusion: np.ndarray, task: str) -> dict[str, float]:
     scores = {"accuracy": accuracy(confusion), "mean_class_accuracy": mean_class_accuracy(confusion)}
     if task == "segment":
         scores["miou"] = mean_iou(confusion)
     return scores
 
 
-def _per_class(confusion: np.ndarray, task: str, names: Sequence[str]) -> dict[str, float | None]:
+def per_class_scores(confusion: np.ndarray, task: str, names: Sequence[str]) -> dict[str, float | None]:
     values = class_iou(confusion) if task == "segment" else class_accuracies(confusion)
     return {name: None if np.isnan(v) else float(v) for name, v in zip(names, values)}
-
-
-# ---------------------------------------------------------------------------------------------
-# Prediction
-# ---------------------------------------------------------------------------------------------
-
-
-class CloudRun(Run):
-    """A trained classifier or segmenter, opened by :func:`pointfield.load_run` (or :meth:`open`)."""
-
-    tasks = ("classify", "segment")
-
-    @classmethod
-    def open(cls, directory: RunDirectory, config: dict[str, Any], device: torch.device) -> CloudRun:
-        if "classes" not in config:
-            raise PointfieldError(f"{directory.path}: the run never got as far as opening its data")
-        model = restore_model(directory, _build(config), identity_of(config), device)
-        return cls(directory, config, model, device)
-
-    def evaluate(
-        self, data: str | os.PathLike[str] | None = None, *, on_error: str = "skip", progress: bool = False
-    ) -> dict[str, Any]:
-        """Score the model on the test split of ``data`` (default: the data it trained on).
-
-        Returns ``accuracy``, ``mean_class_accuracy`` (and ``miou`` for segmentation), the score
-        of each class (``per_class``: accuracy, or IoU for segmentation), the ``confusion``
-        matrix as a list of rows, and the number of ``samples``.
-        """
-        config, task = self.config, self.task
-        data = data if data is not None else config["data"]
-        dataset = open_data(
-            task, data, "test", seed=config["seed"], on_error=on_error,
-            label_field=config["label_field"], shapes_per_class=config["shapes_per_class"],
-            classes=config["classes"] if data is not None else None, points=config["points"],
-            mesh_points=config["mesh_points"], progress=progress,
-        )
-        _check_not_empty(dataset, "test", data)
-        if task == "segment" and dataset.parts and len(dataset.parts) > len(config["parts"]):
-            raise PointfieldError(
-                f"{data}: its labels go up to {len(dataset.parts) - 1}, but the model knows "
-                f"{len(config['parts'])} parts"
-            )
-        collate = CloudCollate(config["features"], point_labels=task == "segment")
-        dataset = dataset.with_transform(evaluation_transform(config["points"]))
-        confusion = confusion_on(self.module, dataset, task, config, collate, self.device)
-        return {
-            **_scores(confusion, task),
-            "per_class": _per_class(confusion, task, _label_names(config)),
-            "confusion": confusion.tolist(),
-            "samples": len(dataset),
-        }
-
-    def predict(
-        self, files: Sequence[str | os.PathLike[str]], *, out: str | os.PathLike[str] | None = None
-    ) -> list[dict[str, Any]]:
-        """Apply the model to files.
-
-        Classification: one dict per file with ``file``, ``class``, ``probability`` and
-        ``probabilities`` (class name -> probability). Segmentation: every point of each file
-        gets the part of its nearest model-input point, and the cloud (a mesh keeps its faces)
-        is written with an int32 ``label`` field to ``out/<stem>.ply`` (default
-        ``RUN/predictions``); one dict per file with ``file``, ``output``, ``points`` and
-        ``parts`` (part name -> count).
-        """
-        config, task = self.config, self.task
-        paths = [Path(f) for f in files]
-        if not paths:
-            raise PointfieldError("no files to predict")
-        collate = CloudCollate(config["features"])
-        out_dir = Path(out) if out is not None else self.path / "predictions"
-        if task == "segment":
-            stems = [p.stem for p in paths]
-            duplicate = next((s for s in stems if stems.count(s) > 1), None)
-            if duplicate is not None:
-                raise PointfieldError(f"two inputs are named {duplicate!r}: their outputs would clash")
-        results = []
-        for path in paths:
-            data, prepared, centre, radius = prepare_for_prediction(path, config)
-            batch = collate([(prepared, 0)]).to(self.device)
-            with torch.inference_mode():
-                logits = self.module(batch.points, batch.features, batch.mask)[0].float()
-            if task == "classify":
-                results.append(_class_answer(path, logits, config["classes"]))
-            else:
-                results.append(_write_parts(path, data, prepared, centre, radius, logits, config, out_dir))
-        return results
-
-
-def _class_answer(path: Path, logits: torch.Tensor, classes: Sequence[str]) -> dict[str, Any]:
-    probabilities = torch.softmax(logits, dim=-1).cpu().numpy()
-    best = int(probabilities.argmax())
-    return {
-        "file": str(path),
-        "class": classes[best],
-        "probability": float(probabilities[best]),
-        "probabilities": {name: float(p) for name, p in zip(classes, probabilities)},
-    }
-
-
-def _write_parts(
-    path: Path, data: PointCloud, prepared: PointCloud, centre: np.ndarray, radius: float,
-    logits: torch.Tensor, config: dict[str, Any], out_dir: Path,
-) -> dict[str, Any]:
-    """Label every point of ``data`` by its nearest model input, write it, count the parts."""
-    input_labels = logits.argmax(dim=-1).cpu()
-    labels = np.full(len(data), -1, np.int32)
-    targets = np.flatnonzero(ops.finite_rows(data.points))
-    if len(targets):
-        moved = (data.points[targets].astype(np.float64) - centre) / radius
-        _, nearest = ops.knn(
-            torch.from_numpy(moved.astype(np.float32))[None], torch.from_numpy(prepared.points)[None], 1,
-        )
-        labels[targets] = input_labels[nearest[0, :, 0]].numpy()
-    out_dir.mkdir(parents=True, exist_ok=True)
-    output = out_dir / f"{path.stem}.ply"
-    write(output, _with_field(data, PART_LABEL_FIELD, labels))
-    counts = np.bincount(labels[labels >= 0], minlength=len(config["parts"]))
-    return {
-        "file": str(path),
-        "output": str(output),
-        "points": int(len(labels)),
-        "parts": {name: int(c) for name, c in zip(config["parts"], counts) if c},
-    }
-
-
-def prepare_for_prediction(
-    path: Path, config: dict[str, Any]
-) -> tuple[PointCloud, PointCloud, np.ndarray, float]:
-    """Read a file as the model needs it: ``(as read, model input, centre, radius)``.
-
-    Meshes are surface-sampled (seeded by file name). The model input is the canonical sample
-    of ``points`` finite points, mapped by ``(p - centre) / radius`` into the unit sphere of
-    all the finite points.
-    """
-    data = read(path)
-    if not isinstance(data, PointCloud):
-        raise FormatError(path, "holds records without x y z coordinates, not a point cloud")
-    source = data
-    if isinstance(data, Mesh) and len(data.faces):
-        seed = int.from_bytes(hashlib.sha1(path.name.encode()).digest()[:4], "little")
-        try:
-            source = data.sample_surface(config["mesh_points"], seed=seed)
-        except ValueError as error:
-            raise FormatError(path, f"cannot sample the mesh surface: {error}") from None
-    finite = ops.finite_rows(source.points)
-    if not finite.any():
-        raise FormatError(path, "has no points with finite coordinates")
-    for name in config["features"]:
-        if name not in source.fields:
-            raise FormatError(path, f"has no {name!r} field, which this model takes as input")
-    clean = source.select(finite)
-    centre, radius = ops.unit_sphere_frame(clean.points)
-    chosen = clean.select(ops.canonical_sample(clean.points, config["points"]))
-    points = ((chosen.points.astype(np.float64) - centre) / radius).astype(np.float32)
-    prepared = PointCloud(points, chosen.fields)
-    return data, prepared, centre, radius
-
-
-def open_run(task: str, run: str | os.PathLike[str], device: str | None = None) -> CloudRun:
-    """The ``task`` run in folder ``run``, opened (refusing a run of another task)."""
-    directory = RunDirectory(run)
-    config = directory.read_config()
-    if config.get("task") != task:
-        raise PointfieldError(f"{directory.path} is a {config.get('task')!r} run, not {task!r}")
-    return CloudRun.open(directory, config, pick_device(device))
-
-
-def evaluate(
-    task: str,
-    run: str | os.PathLike[str],
-    data: str | os.PathLike[str] | None = None,
-    *,
-    device: str | None = None,
-    on_error: str = "skip",
-    progress: bool = False,
-) -> dict[str, Any]:
-    """Score a trained run on the test split of ``data`` (see :meth:`CloudRun.evaluate`)."""
-    return open_run(task, run, device).evaluate(data, on_error=on_error, progress=progress)
-
-
-def predict(
-    task: str,
-    run: str | os.PathLike[str],
-    files: Sequence[str | os.PathLike[str]],
-    *,
-    device: str | None = None,
-    out: str | os.PathLike[str] | None = None,
-) -> list[dict[str, Any]]:
-    """Apply a trained run to files (see :meth:`CloudRun.predict`)."""
-    return open_run(task, run, device).predict(files, out=out)
-
-
-classify = SimpleNamespace(
-    train=functools.partial(train, "classify", out="runs/classify"),
-    evaluate=functools.partial(evaluate, "classify"),
-    predict=functools.partial(predict, "classify"),
-)
-"""``pointfield classify train|eval|predict`` as Python: ``pointfield.classify.train(...)``."""
-segment = SimpleNamespace(
-    train=functools.partial(train, "segment", out="runs/segment"),
-    evaluate=functools.partial(evaluate, "segment"),
-    predict=functools.partial(predict, "segment"),
-)
-"""``pointfield segment train|eval|predict`` as Python: ``pointfield.segment.train(...)``."""
-
-
-def _with_field(data: PointCloud, name: str, values: np.ndarray) -> PointCloud:
-    fields = {**data.fields, name: values}
-    if isinstance(data, Mesh):
-        return Mesh(data.points, fields, data.shape, dict(data.metadata), faces=data.faces,
-                    face_fields=dict(data.face_fields))
-    return PointCloud(data.points, fields, data.shape, dict(data.metadata))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -693,19 +462,19 @@ def identity_of(config: dict[str, Any]) -> dict[str, Any]:
         "model": config["model"],
         "model_options": config["model_options"],
         "features": config["features"],
-        "outputs": len(_label_names(config)),
+        "outputs": len(label_names(config)),
     }
 
 
-def _build(config: dict[str, Any]) -> torch.nn.Module:
+def build_cloud_model(config: dict[str, Any]) -> torch.nn.Module:
     in_channels = 3 * len(config["features"])
     return build_model(
-        config["model"], config["task"], len(_label_names(config)), in_channels,
+        config["model"], config["task"], len(label_names(config)), in_channels,
         **config["model_options"],
     )
 
 
-def _label_names(config: dict[str, Any]) -> list[str]:
+def label_names(config: dict[str, Any]) -> list[str]:
     return config["classes"] if config["task"] == "classify" else config["parts"]
 
 

@@ -44,6 +44,7 @@ import numpy as np
 import torch
 
 from pointfield.scenes.cameras import Cameras, look_at
+from pointfield.scenes.formats import write_scene
 from pointfield.scenes.scene import Frame, Scene, SceneError
 
 NERF_SYNTHETIC_CAMERA_ANGLE_X = 0.6911112070083618
@@ -383,7 +384,5 @@ def make_scene(
     ``pointfield scene make NAME --views V --size S --out DIR`` runs this. Returns ``out``.
     100 views of 100 x 100 take about a second.
     """
-    from pointfield.scenes.formats import write_scene
-
     scene = synthetic_scene(name, views, size, layout=layout, radius=radius, camera_angle_x=camera_angle_x)
     return write_scene(scene, out, "blender", overwrite=overwrite)

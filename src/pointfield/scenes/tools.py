@@ -131,7 +131,7 @@ def plot_cameras(
     max_points: int = 20000,
 ) -> Path:
     """Write a PNG of the camera frustums (coloured by split) and sparse points of a scene."""
-    from pointfield.scenes.cameras_plot import draw_cameras
+    from pointfield.scenes.cameras_plot import draw_cameras  # matplotlib: only when a plot is asked for
 
     scene = (
         path

@@ -38,6 +38,7 @@ import numpy as np
 
 from pointfield.atomic import atomic_path
 from pointfield.clouds.cloud import PointCloud, Records
+from pointfield.clouds.formats import read
 from pointfield.clouds.mesh import Mesh
 from pointfield.errors import PointfieldError
 
@@ -563,8 +564,6 @@ def render_file(
 
     The Python form of ``pointfield cloud render FILE --out OUT``.
     """
-    from pointfield.clouds.formats import read
-
     cloud = read(path, **read_options)
     try:
         image = render_cloud(cloud, width, height, up, color_by, point_size)

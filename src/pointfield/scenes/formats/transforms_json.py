@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from pointfield.clouds.formats import read, write
 from pointfield.errors import FormatError
 from pointfield.scenes.cameras import CAMERA_MODELS, Cameras, opencv_to_opengl, opengl_to_opencv
 from pointfield.scenes.formats.export import export_frame, unique_stem
@@ -376,9 +377,7 @@ def read_nerfstudio(path: Path, missing_images: str = "skip") -> Scene:
     points = None
     if "ply_file_path" in document:
         ply_path = _relative_path(json_path.parent, document["ply_file_path"], json_path, "ply_file_path")
-        import pointfield
-
-        points = pointfield.read(ply_path)
+        points = read(ply_path)
     aabb = explicit_aabb(document, json_path)
     if aabb is None:
         aabb = instant_ngp_aabb(document, json_path)
@@ -470,9 +469,7 @@ def write_nerfstudio(scene: Scene, directory: Path) -> None:
             if name in SPLIT_NAMES:
                 document[f"{name}_filenames"] = [relative_images[i] for i in indices]
     if scene.points is not None:
-        import pointfield
-
-        pointfield.write(directory / "sparse_pc.ply", scene.points)
+        write(directory / "sparse_pc.ply", scene.points)
         document["ply_file_path"] = "sparse_pc.ply"
     write_json(directory / "transforms.json", document)
 
