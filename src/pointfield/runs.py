@@ -20,11 +20,10 @@ from __future__ import annotations
 import os
 
 from pointfield.clouds.run import CloudRun
-from pointfield.devices import pick_device
-from pointfield.errors import PointfieldError
 from pointfield.fields.run import FieldRun
 from pointfield.splats.run import SplatRun
-from pointfield.training.run import Run, RunDirectory
+from pointfield.training.lifecycle import open_run
+from pointfield.training.run import Run
 
 RUN_CLASSES: tuple[type[Run], ...] = (CloudRun, FieldRun, SplatRun)
 
@@ -36,11 +35,4 @@ def load_run(path: str | os.PathLike[str], device: str | None = None) -> Run:
     A folder that is not a run, or a checkpoint that does not match the run's config, raises
     :class:`~pointfield.PointfieldError` saying so.
     """
-    directory = RunDirectory(path)
-    config = directory.read_config()
-    task = config.get("task")
-    for run_class in RUN_CLASSES:
-        if task in run_class.tasks:
-            return run_class.open(directory, config, pick_device(device))
-    known = ", ".join(name for run_class in RUN_CLASSES for name in run_class.tasks)
-    raise PointfieldError(f"{directory.path}: a run of task {task!r}, which this pointfield cannot open ({known})")
+    return open_run(RUN_CLASSES, path, device)

@@ -48,8 +48,8 @@ from pointfield.clouds.tasks import (
     scores_of,
     train,
 )
-from pointfield.devices import pick_device
 from pointfield.errors import FormatError, PointfieldError
+from pointfield.training.lifecycle import open_run as open_trained
 from pointfield.training.lifecycle import restore_model
 from pointfield.training.run import Run, RunDirectory
 
@@ -207,11 +207,10 @@ def prepare_for_prediction(
 
 def open_run(task: str, run: str | os.PathLike[str], device: str | None = None) -> CloudRun:
     """The ``task`` run in folder ``run``, opened (refusing a run of another task)."""
-    directory = RunDirectory(run)
-    config = directory.read_config()
-    if config.get("task") != task:
-        raise PointfieldError(f"{directory.path} is a {config.get('task')!r} run, not {task!r}")
-    return CloudRun.open(directory, config, pick_device(device))
+    opened = open_trained((CloudRun,), run, device)
+    if opened.task != task:
+        raise PointfieldError(f"{opened.path} is a {opened.task!r} run, not {task!r}")
+    return opened
 
 
 def evaluate(

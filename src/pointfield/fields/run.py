@@ -14,7 +14,6 @@ from typing import Any
 import torch
 from torch import nn
 
-from pointfield.devices import pick_device
 from pointfield.errors import PointfieldError
 from pointfield.fields.field import RadianceField
 from pointfield.fields.models import MODELS, build_model
@@ -24,7 +23,7 @@ from pointfield.scenes.cameras import Cameras
 from pointfield.scenes.heldout import View, ray_bounds
 from pointfield.scenes.run import SceneRun
 from pointfield.scenes.scene import Scene
-from pointfield.training.lifecycle import restore_model
+from pointfield.training.lifecycle import open_run, restore_model
 from pointfield.training.run import RunDirectory
 
 TASK = "nerf"
@@ -92,20 +91,9 @@ class FieldRun(SceneRun):
         return render_field(self.module, cameras, index, near, far, self.background)
 
 
-def open_run(run: str | os.PathLike[str], device: str | None = None) -> FieldRun:
-    """The NeRF run in folder ``run``, opened on ``device``."""
-    directory = RunDirectory(run)
-    config = directory.read_config()
-    if config.get("task") != TASK:
-        raise PointfieldError(
-            f"{directory.path}: not a NeRF run (task {config.get('task')!r}, model {config.get('model')!r})"
-        )
-    return FieldRun.open(directory, config, pick_device(device))
-
-
 def evaluate(run: str | os.PathLike[str], device: str | None = None) -> dict[str, Any]:
     """PSNR (mean of per-view PSNR) and SSIM of a trained run on its held-out views (``nerf eval``)."""
-    return open_run(run, device).evaluate()
+    return open_run((FieldRun,), run, device).evaluate()
 
 
 def render(
@@ -117,4 +105,4 @@ def render(
     device: str | None = None,
 ) -> dict[str, Any]:
     """Render a trained run along ``path`` into ``out`` (``.gif``, ``.mp4`` or a folder): ``nerf render``."""
-    return open_run(run, device).render_path(path, frames=frames, out=out)
+    return open_run((FieldRun,), run, device).render_path(path, frames=frames, out=out)

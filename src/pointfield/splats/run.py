@@ -31,6 +31,7 @@ from pointfield.splats.gsplat_rasterizer import choose_rasterizer, rasterization
 from pointfield.splats.ply import read_splats, write_splats
 from pointfield.splats.rasterizer import rasterization
 from pointfield.training.checkpoints import load_checkpoint
+from pointfield.training.lifecycle import open_run
 from pointfield.training.run import RunDirectory
 
 TASK = "splat"
@@ -98,8 +99,7 @@ class SplatRun(SceneRun):
         self.rasterizer = choose_rasterizer(rasterizer, device)
 
     @classmethod
-    def open(cls, directory: RunDirectory, config: dict[str, Any], device: torch.device,
-             rasterizer: str = "auto") -> SplatRun:
+    def open(cls, directory: RunDirectory, config: dict[str, Any], device: torch.device) -> SplatRun:
         payload = load_checkpoint(directory.checkpoint, {"task": TASK})
         state = payload["model"]
         missing = [name for name in PARAMETER_NAMES if name not in state]
@@ -112,7 +112,7 @@ class SplatRun(SceneRun):
         extra = state.get("_extra_state")
         if isinstance(extra, dict) and "active_sh_degree" in extra:
             gaussians.active_sh_degree = int(extra["active_sh_degree"])
-        return cls(directory, config, gaussians.to(device).eval(), device, rasterizer)
+        return cls(directory, config, gaussians.to(device).eval(), device)
 
     @property
     def gaussians(self) -> Gaussians:
@@ -122,18 +122,9 @@ class SplatRun(SceneRun):
         return render_camera(self.gaussians, cameras, index, self.background, self.rasterizer)
 
 
-def open_run(run: str | os.PathLike[str], device: str | None = None, rasterizer: str = "auto") -> SplatRun:
-    """The splat run in folder ``run``, opened on ``device``."""
-    directory = RunDirectory(run)
-    config = directory.read_config()
-    if config.get("task") != TASK:
-        raise PointfieldError(f"{directory.path}: not a splat run (task {config.get('task')!r})")
-    return SplatRun.open(directory, config, pick_device(device), rasterizer)
-
-
 def export(run: str | os.PathLike[str], out: str | os.PathLike[str]) -> dict[str, Any]:
     """Write a trained run's splats as a standard splat ``.ply``."""
-    gaussians = open_run(run, "cpu").gaussians
+    gaussians = open_run((SplatRun,), run, "cpu").gaussians
     write_splats(out, gaussians)
     return {"out": str(out), "splats": len(gaussians), "sh_degree": gaussians.sh_degree}
 
@@ -167,7 +158,8 @@ def render(
     """
     source = Path(source)
     if source.is_dir():
-        opened = open_run(source, device, rasterizer)
+        opened = open_run((SplatRun,), source, device)
+        opened.rasterizer = choose_rasterizer(rasterizer, opened.device)
     else:
         if scene is None:
             raise PointfieldError(f"{source}: a splat file has no cameras; pass --scene SCENE to render it")

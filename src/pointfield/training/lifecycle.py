@@ -14,9 +14,10 @@
 
 Under ``torchrun`` every process runs the same lifecycle; only rank 0 writes.
 
-:func:`restore_model` is the other half: a run folder's model with its last checkpoint loaded,
-checked against what the run's config says it is (``weights_only`` loading, see
-:mod:`~pointfield.training.checkpoints`).
+:func:`open_run` is the other half: a run folder opened as a :class:`~pointfield.training.Run`
+of the class that knows its task, whose ``open`` loads the model with :func:`restore_model` --
+the last checkpoint, checked against what the run's config says it is (``weights_only``
+loading, see :mod:`~pointfield.training.checkpoints`).
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ from pointfield.errors import PointfieldError
 from pointfield.training import distributed as processes
 from pointfield.training.checkpoints import load_checkpoint, restore
 from pointfield.training.loop import fit
-from pointfield.training.run import RunDirectory
+from pointfield.devices import pick_device
+from pointfield.training.run import Run, RunDirectory
 from pointfield.training.task import Task
 
 
@@ -104,3 +106,21 @@ def restore_model(
     payload = load_checkpoint(run.checkpoint, identity, map_location=device)
     restore(run.checkpoint, payload, model)
     return model.to(device).eval()
+
+
+def open_run(
+    run_classes: tuple[type[Run], ...], path: str | os.PathLike[str], device: str | torch.device | None = None
+) -> Run:
+    """The run in folder ``path``, opened by whichever of ``run_classes`` knows its task, on ``device``.
+
+    A folder that is not a run, or a run of a task none of them opens, raises
+    :class:`PointfieldError` saying so.
+    """
+    directory = RunDirectory(path)
+    config = directory.read_config()
+    task = config.get("task")
+    for run_class in run_classes:
+        if task in run_class.tasks:
+            return run_class.open(directory, config, pick_device(device))
+    expected = " or ".join(repr(name) for run_class in run_classes for name in run_class.tasks)
+    raise PointfieldError(f"{directory.path}: a run of task {task!r}, not {expected}")
