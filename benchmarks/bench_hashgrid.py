@@ -1,7 +1,7 @@
 """Hash-grid throughput and Instant-NGP memory (issue 6).
 
 (a) **Throughput**: forward + backward of the multiresolution hash encoding in samples per second,
-for each implementation in :mod:`pointfield.fields.hashgrid` -- ``compiled`` (torch.compile),
+for each implementation in :mod:`pointfield.fields.encodings.hashgrid` -- ``compiled`` (torch.compile),
 ``eager`` (hand-written backward) and ``reference_hash_encoding`` -- beside TinyNeRF's dense MLP
 field (``RadianceMLP(depth=4, width=128, skips=(), color_width=64)`` on the same points, with
 random view directions) and the whole :class:`~pointfield.fields.ngp.NGPField` (encoding + density
@@ -64,11 +64,12 @@ def lego_config(args: argparse.Namespace, size: int) -> dict[str, int]:
     """What ``pointfield nerf train lego --model ngp`` builds for ``size``-pixel views, or the command line's.
 
     InstantNGP's constructor defaults, with ``max_resolution`` from the image size as the training
-    command sets it (:func:`pointfield.fields.ngp.default_max_resolution`).
+    command sets it (:func:`pointfield.fields.scene_box.default_max_resolution`).
     """
     from types import SimpleNamespace
 
-    from pointfield.fields.ngp import InstantNGP, default_max_resolution
+    from pointfield.fields.ngp import InstantNGP
+    from pointfield.fields.scene_box import default_max_resolution
 
     defaults = {name: parameter.default for name, parameter in inspect.signature(InstantNGP).parameters.items()}
     side = torch.tensor([size])
@@ -170,7 +171,7 @@ def compiler_available(device: torch.device) -> bool:
 
 
 def throughput(config: dict[str, int], args: argparse.Namespace, device: torch.device) -> list[dict]:
-    from pointfield.fields.hashgrid import HashEncoding, reference_hash_encoding
+    from pointfield.fields.encodings.hashgrid import HashEncoding, reference_hash_encoding
     from pointfield.fields.nerf import RadianceMLP
     from pointfield.fields.ngp import NGPField
 

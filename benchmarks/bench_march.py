@@ -1,8 +1,8 @@
 """Ray marching through an occupancy grid: the compiled occupancy test against the same test run eagerly.
 
-The claim (issue 6's render time): :func:`pointfield.fields.ngp.march_rays` tests every fixed
+The claim (issue 6's render time): :func:`pointfield.fields.sampling.occupancy.march_rays` tests every fixed
 step of every ray against the occupancy grid -- about 1.4 million candidates for a 100 x 100
-lego view -- as one dense expression (:func:`~pointfield.fields.ngp.occupied_candidates`) that
+lego view -- as one dense expression (:func:`~pointfield.fields.sampling.occupancy.occupied_candidates`) that
 ``torch.compile`` fuses into one loop where a compiler exists (:mod:`pointfield.compiling`).
 The peer, measured in the same run, is the same function run eagerly; both must keep exactly
 the same samples.
@@ -29,7 +29,7 @@ BOX = ((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5))
 
 
 def lego_like_grid():
-    from pointfield.fields.ngp import OccupancyGrid
+    from pointfield.fields.sampling.occupancy import OccupancyGrid
 
     grid = OccupancyGrid(torch.tensor(BOX), resolution=64)
     index = torch.arange(grid.resolution**3)
@@ -61,7 +61,8 @@ def median_seconds(function, count: int) -> float:
 
 
 def main() -> None:
-    from pointfield.fields.ngp import march_rays
+    from pointfield.fields.rays import RayBundle
+    from pointfield.fields.sampling.occupancy import march_rays
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=15, help="marches timed per backend (median)")
@@ -75,7 +76,7 @@ def main() -> None:
     step = float(torch.linalg.norm(grid.box[1] - grid.box[0])) / 256
 
     def march(backend: str):
-        return march_rays(rays.origins, rays.directions, rays.near, rays.far, grid, step, backend=backend)
+        return march_rays(RayBundle(rays.origins, rays.directions, rays.near, rays.far), grid, step, backend=backend)
 
     compiled, eager = march("compiled"), march("eager")
     same = torch.equal(compiled.ray_indices, eager.ray_indices) and torch.equal(compiled.t_starts, eager.t_starts)

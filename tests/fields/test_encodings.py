@@ -1,10 +1,10 @@
-"""Positional encoding gamma(p)."""
+"""Fourier positional encoding gamma(p)."""
 
 import math
 
 import torch
 
-from pointfield.fields.encodings import PositionalEncoding, positional_encoding
+from pointfield.fields.encodings.fourier import PositionalEncoding, positional_encoding
 
 
 def test_encoding_is_p_then_sines_and_cosines_of_doubling_frequencies():

@@ -7,8 +7,8 @@ import warnings
 import pytest
 import torch
 
-from pointfield.fields import hashgrid
-from pointfield.fields.hashgrid import (
+from pointfield.fields.encodings import hashgrid
+from pointfield.fields.encodings.hashgrid import (
     PRIMES,
     HashEncoding,
     _HashGridFunction,

@@ -2,14 +2,15 @@
 
 import torch
 
-from pointfield.fields.nerf import NeRF, RadianceMLP, TinyNeRF, build_model, render_in_chunks
+from pointfield.fields.nerf import NeRF, RadianceMLP, TinyNeRF
+from pointfield.fields.rays import RayBundle
 
 
-def _rays(count: int):
+def _rays(count: int) -> RayBundle:
     origins = torch.zeros(count, 3)
     origins[:, 2] = -4
     directions = torch.nn.functional.normalize(torch.randn(count, 3) * 0.1 + torch.tensor([0.0, 0.0, 1.0]), dim=-1)
-    return origins, directions, torch.full((count,), 2.0), torch.full((count,), 6.0)
+    return RayBundle(origins, directions, torch.full((count,), 2.0), torch.full((count,), 6.0))
 
 
 def test_field_maps_positions_and_directions_to_density_and_colour():
@@ -22,8 +23,9 @@ def test_field_maps_positions_and_directions_to_density_and_colour():
 def test_tiny_nerf_is_the_4_by_128_network_with_one_pass():
     model = TinyNeRF(samples=8)
     assert [layer.out_features for layer in model.field.trunk] == [128] * 4
-    passes = model(*_rays(6), background=torch.ones(3), jitter=True)
-    assert len(passes) == 1 and passes[0].color.shape == (6, 3) and passes[0].weights.shape == (6, 8)
+    output = model(_rays(6), background=torch.ones(3), jitter=True)
+    assert len(output.passes) == 1 and output.final.color.shape == (6, 3) and output.final.weights.shape == (6, 8)
+    assert output.samples == 6 * 8 and output.auxiliary_loss is None
 
 
 def test_nerf_has_8_by_256_trunks_with_the_input_again_after_layer_4():
@@ -31,15 +33,16 @@ def test_nerf_has_8_by_256_trunks_with_the_input_again_after_layer_4():
     for field in (model.coarse, model.fine):
         assert [layer.out_features for layer in field.trunk] == [256] * 8
         assert field.trunk[5].in_features == 256 + 63 and field.trunk[4].in_features == 256
-    coarse, fine = model(*_rays(4), jitter=True)
-    assert coarse.t.shape == (4, 8) and fine.t.shape == (4, 24)
+    output = model(_rays(4), jitter=True)
+    coarse, fine = output.passes
+    assert output.final is fine
+    assert coarse.samples.t.shape == (4, 8) and fine.samples.t.shape == (4, 24)
+    assert output.samples == 4 * 8 + 4 * 24
 
 
-def test_render_in_chunks_matches_one_pass():
-    torch.manual_seed(0)
-    model = build_model("tiny", samples=8)
-    rays = _rays(10)
-    whole = model(*rays, torch.ones(3))[-1]
-    chunked = render_in_chunks(model, *rays, torch.ones(3), chunk=3)
-    torch.testing.assert_close(chunked["color"], whole.color)
-    torch.testing.assert_close(chunked["depth"], whole.depth)
+def test_nerf_samples_are_evaluated_at_their_points_and_reach_to_the_next_one():
+    model = TinyNeRF(samples=8)
+    samples = model(_rays(3)).final.samples
+    torch.testing.assert_close(samples.t, samples.t_starts)
+    torch.testing.assert_close(samples.t_ends[:, :-1], samples.t_starts[:, 1:])
+    torch.testing.assert_close(samples.t_ends[:, -1], torch.full((3,), 6.0))

@@ -1,13 +1,15 @@
-"""Scene contraction, nerfacto's proposal sampler, and mip-NeRF 360's interlevel and distortion losses."""
+"""Nerfacto's proposal sampler, and mip-NeRF 360's interlevel and distortion losses."""
 
 import pytest
 import torch
 
 from pointfield.errors import PointfieldError
-from pointfield.fields.proposal import (
+from pointfield.fields.encodings.contraction import contract
+from pointfield.fields.rays import RayBundle
+from pointfield.fields.rendering import render_weights_from_density
+from pointfield.fields.sampling.proposal import (
     ProposalNetwork,
     ProposalSampler,
-    contract,
     distance_from_spacing,
     distortion_loss,
     initial_bin_edges,
@@ -16,56 +18,9 @@ from pointfield.fields.proposal import (
     proposal_anneal,
     spacing_from_distance,
 )
-from pointfield.fields.rendering import render_weights_from_density
 
 CENTER = torch.tensor([0.5, -1.0, 2.0])
 RADIUS = 3.0
-
-
-# -- contraction -------------------------------------------------------------------------------------
-
-
-def test_contraction_is_a_rescaling_inside_the_ball():
-    directions = torch.nn.functional.normalize(torch.randn(100, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
-    inside = CENTER + directions * RADIUS * torch.rand(100, 1, generator=torch.Generator().manual_seed(1))
-    torch.testing.assert_close(contract(inside, CENTER, RADIUS), ((inside - CENTER) / RADIUS + 2) / 4)
-
-
-def test_contraction_sends_infinity_to_radius_two_and_keeps_everything_in_the_unit_cube():
-    directions = torch.nn.functional.normalize(torch.randn(50, 3, generator=torch.Generator().manual_seed(2)), dim=-1)
-    far_away = CENTER + directions * 1e12
-    contracted = contract(far_away, CENTER, RADIUS) * 4 - 2
-    torch.testing.assert_close(contracted.norm(dim=-1), torch.full((50,), 2.0))
-    torch.testing.assert_close(contracted / 2, directions)
-    unit = contract(CENTER + directions * torch.logspace(-3, 9, 50)[:, None], CENTER, RADIUS)
-    assert unit.min() >= 0 and unit.max() <= 1
-
-
-def test_contraction_follows_the_formula_outside_the_ball():
-    # ||x'|| = 4: (2 - 1/4) x' / 4 = 1.75 along the axis.
-    point = CENTER + torch.tensor([0.0, 4 * RADIUS, 0.0])
-    torch.testing.assert_close(contract(point, CENTER, RADIUS), torch.tensor([0.5, (1.75 + 2) / 4, 0.5]))
-
-
-def test_contraction_is_continuous_across_the_ball_boundary():
-    direction = torch.nn.functional.normalize(torch.tensor([1.0, 2.0, -0.5]), dim=0)
-    just_in = contract(CENTER + direction * RADIUS * (1 - 1e-6), CENTER, RADIUS)
-    just_out = contract(CENTER + direction * RADIUS * (1 + 1e-6), CENTER, RADIUS)
-    assert (just_in - just_out).abs().max() < 1e-5
-
-
-def test_contraction_gradient_is_finite_at_the_centre_and_right_everywhere():
-    points = torch.stack([CENTER, CENTER + torch.tensor([7.0, 0.0, 0.0])]).double().requires_grad_()
-    contract(points, CENTER.double(), RADIUS)[:, 0].sum().backward()
-    assert torch.isfinite(points.grad).all()
-    # At the centre the map is x / (4 r); outside, d/dx of (2 - r/x)/4 along the axis is r / (4 x^2).
-    torch.testing.assert_close(points.grad[0], torch.tensor([1 / (4 * RADIUS), 0, 0], dtype=torch.float64))
-    torch.testing.assert_close(points.grad[1], torch.tensor([RADIUS / (4 * 7.0**2), 0, 0], dtype=torch.float64))
-
-
-def test_contraction_rejects_a_non_positive_radius():
-    with pytest.raises(PointfieldError, match="radius"):
-        contract(torch.zeros(1, 3), torch.zeros(3), 0.0)
 
 
 # -- initial samples ---------------------------------------------------------------------------------
@@ -205,7 +160,8 @@ def test_sampler_returns_increasing_edges_between_near_and_far_and_one_round_per
     sampler = _sampler()
     origins, directions = _rays(10, 0)
     near, far = torch.full((10,), 0.2), torch.full((10,), 1e3 * RADIUS)
-    edges, rounds = sampler(origins, directions, near, far, _to_unit, generator=torch.Generator().manual_seed(0))
+    edges, rounds = sampler(RayBundle(origins, directions, near, far), _to_unit,
+                            generator=torch.Generator().manual_seed(0))
     assert edges.shape == (10, 17) and not edges.requires_grad
     assert torch.all(torch.diff(edges, dim=-1) >= 0)
     assert torch.all(edges >= near[:, None] * (1 - 1e-5)) and torch.all(edges <= far[:, None] * (1 + 1e-5))
@@ -220,8 +176,9 @@ def test_sampler_returns_increasing_edges_between_near_and_far_and_one_round_per
 def test_sampler_without_jitter_is_deterministic():
     sampler = _sampler()
     origins, directions = _rays(6, 1)
-    first, _ = sampler(origins, directions, 0.1, 100.0, _to_unit, jitter=False)
-    again, _ = sampler(origins, directions, 0.1, 100.0, _to_unit, jitter=False)
+    rays = RayBundle(origins, directions, torch.full((6,), 0.1), torch.full((6,), 100.0))
+    first, _ = sampler(rays, _to_unit, jitter=False)
+    again, _ = sampler(rays, _to_unit, jitter=False)
     assert torch.equal(first, again)
 
 
@@ -279,6 +236,7 @@ def test_a_trained_sampler_puts_the_field_samples_on_the_surface():
     sampler = _sampler()
     origins, directions = _rays(32, 3)
     near, far = torch.full((32,), 0.1), torch.full((32,), 1e3 * RADIUS)
+    rays = RayBundle(origins, directions, near, far)
     # Distance to the ball's front surface along each ray.
     offset = origins - SURFACE_CENTER
     along = (offset * directions).sum(-1)
@@ -286,7 +244,7 @@ def test_a_trained_sampler_puts_the_field_samples_on_the_surface():
 
     def share_near_surface():
         with torch.no_grad():
-            edges, _ = sampler(origins, directions, near, far, _to_unit, jitter=False)
+            edges, _ = sampler(rays, _to_unit, jitter=False)
         midpoints = 0.5 * (edges[:, 1:] + edges[:, :-1])
         return float(((midpoints - hit[:, None]).abs() < 0.3).float().mean())
 
@@ -294,7 +252,7 @@ def test_a_trained_sampler_puts_the_field_samples_on_the_surface():
     optimizer = torch.optim.Adam(sampler.parameters(), lr=1e-2)
     generator = torch.Generator().manual_seed(4)
     for _ in range(60):
-        edges, rounds = sampler(origins, directions, near, far, _to_unit, generator=generator)
+        edges, rounds = sampler(rays, _to_unit, generator=generator)
         midpoints = 0.5 * (edges[:, 1:] + edges[:, :-1])
         sigma = _surface_density(origins[:, None] + midpoints[..., None] * directions[:, None])
         weights, _, _ = render_weights_from_density(sigma, torch.diff(edges, dim=-1))

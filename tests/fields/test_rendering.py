@@ -1,11 +1,18 @@
-"""Compositing against closed forms (issue 5, "What must hold")."""
+"""The compositor: against closed forms (issue 5, "What must hold"), padded and packed alike."""
 
 import math
 
+import pytest
 import torch
 
-from pointfield.fields.rendering import composite_along_rays, render_rays, render_weights_from_density
-from pointfield.fields.sampling import sample_deltas, stratified_samples
+from pointfield.fields.rays import RayBundle, RaySamples
+from pointfield.fields.rendering import (
+    composite,
+    render_rays,
+    render_weights_from_density,
+    transmittance_from_optical_depth,
+)
+from pointfield.fields.sampling.stratified import stratified_samples
 
 
 def _slab(sigma: float, start: float, end: float):
@@ -21,18 +28,19 @@ def _slab(sigma: float, start: float, end: float):
     return field
 
 
-def _rays_along_z(count: int = 4):
+def _rays_along_z(near: float, far: float, count: int = 4) -> RayBundle:
     origins = torch.zeros(count, 3, dtype=torch.float64)
     directions = torch.zeros(count, 3, dtype=torch.float64)
     directions[:, 2] = 1
-    return origins, directions
+    return RayBundle(origins, directions, torch.full((count,), near, dtype=torch.float64),
+                     torch.full((count,), far, dtype=torch.float64))
 
 
 def test_constant_density_slab_has_opacity_one_minus_exp_sigma_length():
-    origins, directions = _rays_along_z()
+    rays = _rays_along_z(0.0, 4.0)
     t = stratified_samples(0.0, 4.0, 4000, rays=4, jitter=False).double()
     sigma, start, end = 0.7, 1.0, 2.5
-    out = render_rays(_slab(sigma, start, end), origins, directions, t, 4.0)
+    out = render_rays(_slab(sigma, start, end), rays, RaySamples.from_points(t, rays.far))
     expected = 1 - math.exp(-sigma * (end - start))
     torch.testing.assert_close(out.opacity, torch.full((4,), expected, dtype=torch.float64), atol=1e-3, rtol=0)
 
@@ -40,16 +48,16 @@ def test_constant_density_slab_has_opacity_one_minus_exp_sigma_length():
 def test_slab_filling_whole_interval_is_exact_for_any_sample_count():
     t = stratified_samples(1.0, 3.0, 7, rays=2, jitter=True).double()
     sigmas = torch.full_like(t, 0.4)
-    weights, _, _ = render_weights_from_density(sigmas, sample_deltas(t, 3.0))
+    weights, _, _ = render_weights_from_density(sigmas, RaySamples.from_points(t, 3.0).deltas)
     expected = 1 - torch.exp(-0.4 * (3.0 - t[:, 0]))
     torch.testing.assert_close(weights.sum(-1), expected, atol=1e-12, rtol=0)
 
 
 def test_opaque_wall_gives_its_depth():
-    origins, directions = _rays_along_z()
+    rays = _rays_along_z(0.0, 6.0)
     t = stratified_samples(0.0, 6.0, 600, rays=4, jitter=False).double()
     wall = 3.0
-    out = render_rays(_slab(1e4, wall, 10.0), origins, directions, t, 6.0)
+    out = render_rays(_slab(1e4, wall, 10.0), rays, RaySamples.from_points(t, rays.far))
     torch.testing.assert_close(out.opacity, torch.ones(4, dtype=torch.float64))
     # The first sample at or past the wall stops the ray: depth within one sample spacing.
     assert torch.all((out.depth - wall).abs() <= 6.0 / 600)
@@ -61,7 +69,7 @@ def test_weights_sum_to_opacity_and_colour_blends_background():
     colors = torch.rand(8, 32, 3, generator=generator, dtype=torch.float64)
     t = stratified_samples(2.0, 6.0, 32, rays=8, generator=generator).double()
     background = torch.tensor([1.0, 0.5, 0.25], dtype=torch.float64)
-    out = composite_along_rays(sigmas, colors, t, sample_deltas(t, 6.0), background)
+    out = composite(sigmas, colors, RaySamples.from_points(t, 6.0), background)
     torch.testing.assert_close(out.weights.sum(-1), out.opacity)
     assert torch.all((out.opacity > 0) & (out.opacity < 1))
     expected = (out.weights[..., None] * colors).sum(1) + (1 - out.opacity)[:, None] * background
@@ -81,7 +89,7 @@ def test_gradients_are_finite_where_alpha_is_one():
     sigmas = torch.tensor([[0.5, 1e6, 1e9, 3.0]], dtype=torch.float32, requires_grad=True)
     colors = torch.rand(1, 4, 3, requires_grad=True)
     t = torch.tensor([[1.0, 2.0, 3.0, 4.0]])
-    out = composite_along_rays(sigmas, colors, t, sample_deltas(t, 5.0), torch.ones(3))
+    out = composite(sigmas, colors, RaySamples.from_points(t, 5.0), torch.ones(3))
     assert torch.all(out.weights[0, 2:] == 0) and out.opacity.item() == 1.0
     (out.color.sum() + out.depth.sum()).backward()
     assert torch.all(torch.isfinite(sigmas.grad)) and torch.all(torch.isfinite(colors.grad))
@@ -91,6 +99,124 @@ def test_gradients_are_finite_where_alpha_is_one():
 
 def test_empty_space_shows_the_background():
     t = stratified_samples(2.0, 6.0, 8, rays=3, jitter=False)
-    out = composite_along_rays(torch.zeros(3, 8), torch.rand(3, 8, 3), t, sample_deltas(t, 6.0), torch.ones(3))
+    out = composite(torch.zeros(3, 8), torch.rand(3, 8, 3), RaySamples.from_points(t, 6.0), torch.ones(3))
     torch.testing.assert_close(out.color, torch.ones(3, 3))
     torch.testing.assert_close(out.opacity, torch.zeros(3))
+
+
+# -- packed samples --------------------------------------------------------------------------------
+
+
+def _packed_and_padded(lengths, seed=0, dtype=torch.float64):
+    """Random samples of rays with ``lengths`` samples each, packed and padded to an (R, K) block.
+
+    The padding on the padded side is zero-length intervals at the ray's end, which composite to
+    nothing. Returns ``(packed, padded, sigmas (S,), colors (S, 3), where)``, ``where`` the
+    ``(ray, slot)`` of each packed sample in the block.
+    """
+    generator = torch.Generator().manual_seed(seed)
+    rays, width = len(lengths), max(lengths)
+    ray_indices = torch.repeat_interleave(torch.arange(rays), torch.tensor(lengths))
+    slots = torch.cat([torch.arange(n) for n in lengths])
+    deltas = torch.rand(len(ray_indices), generator=generator, dtype=dtype) * 0.3 + 0.01
+    gaps = torch.rand(len(ray_indices), generator=generator, dtype=dtype) * 0.2  # skipped empty space
+    t_starts = torch.zeros_like(deltas)
+    for ray in range(rays):  # per ray: start at 2, then each sample after the previous one and a gap
+        members = (ray_indices == ray).nonzero()[:, 0]
+        t_starts[members] = 2 + torch.cumsum(gaps[members] + deltas[members], 0) - deltas[members]
+    packed = RaySamples(t_starts, t_starts + deltas, ray_indices, num_rays=rays)
+    padded_starts = torch.full((rays, width), 10.0, dtype=dtype)
+    padded_ends = padded_starts.clone()
+    padded_starts[ray_indices, slots] = packed.t_starts
+    padded_ends[ray_indices, slots] = packed.t_ends
+    padded = RaySamples(padded_starts, padded_ends)
+    sigmas = torch.rand(len(ray_indices), generator=generator, dtype=dtype) * 8
+    colors = torch.rand(len(ray_indices), 3, generator=generator, dtype=dtype)
+    return packed, padded, sigmas, colors, (ray_indices, slots)
+
+
+def _padded_values(values, where, shape):
+    block = values.new_zeros(*shape, *values.shape[1:])
+    block[where] = values
+    return block
+
+
+def test_packed_compositing_equals_padded_compositing_for_rays_of_different_lengths():
+    lengths = [3, 0, 5, 1, 2, 7]
+    packed, padded, sigmas, colors, where = _packed_and_padded(lengths)
+    background = torch.tensor([1.0, 0.5, 0.25], dtype=torch.float64)
+    shape = padded.t_starts.shape
+    from_packed = composite(sigmas, colors, packed, background)
+    from_padded = composite(_padded_values(sigmas, where, shape), _padded_values(colors, where, shape), padded,
+                            background)
+    for name in ("color", "opacity", "depth"):
+        torch.testing.assert_close(getattr(from_packed, name), getattr(from_padded, name), atol=1e-12, rtol=0,
+                                   msg=name)
+    torch.testing.assert_close(from_packed.weights, from_padded.weights[where], atol=1e-12, rtol=0)
+    torch.testing.assert_close(from_packed.color[1], background)  # the ray with no samples
+    assert from_packed.opacity[1] == 0 and from_packed.depth[1] == 0
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_same_samples_composite_alike_padded_and_packed(dtype):
+    generator = torch.Generator().manual_seed(3)
+    t = stratified_samples(2.0, 6.0, 24, rays=5, generator=generator).to(dtype)
+    padded = RaySamples.from_points(t, 6.0)
+    sigmas = torch.rand(5, 24, generator=generator, dtype=dtype) * 3
+    colors = torch.rand(5, 24, 3, generator=generator, dtype=dtype)
+    background = torch.tensor([0.2, 0.4, 0.6], dtype=dtype)
+    from_padded = composite(sigmas, colors, padded, background)
+    from_packed = composite(sigmas.reshape(-1), colors.reshape(-1, 3), padded.packed(), background)
+    tolerance = 1e-6 if dtype == torch.float32 else 1e-12  # relative: depth is about 4
+    for name in ("color", "depth", "opacity"):
+        torch.testing.assert_close(getattr(from_packed, name), getattr(from_padded, name), atol=tolerance,
+                                   rtol=tolerance, msg=name)
+    torch.testing.assert_close(from_packed.weights, from_padded.weights.reshape(-1), atol=tolerance,
+                               rtol=tolerance)
+
+
+def test_packed_compositing_has_the_gradients_of_padded_compositing():
+    lengths = [4, 1, 0, 6, 2]
+    packed, padded, sigmas, colors, where = _packed_and_padded(lengths, seed=1)
+    background = torch.tensor([0.2, 0.9, 0.4], dtype=torch.float64)
+    generator = torch.Generator().manual_seed(5)
+    upstream = [torch.randn(shape, generator=generator, dtype=torch.float64) for shape in ((5, 3), (5,), (5,))]
+
+    def loss(rendered):
+        return sum((value * weight).sum() for value, weight in
+                   zip((rendered.color, rendered.opacity, rendered.depth), upstream))
+
+    sigmas.requires_grad_(), colors.requires_grad_()
+    packed_grads = torch.autograd.grad(loss(composite(sigmas, colors, packed, background)), (sigmas, colors))
+    shape = padded.t_starts.shape
+    padded_sigmas = _padded_values(sigmas.detach(), where, shape).requires_grad_()
+    padded_colors = _padded_values(colors.detach(), where, shape).requires_grad_()
+    padded_grads = torch.autograd.grad(loss(composite(padded_sigmas, padded_colors, padded, background)),
+                                       (padded_sigmas, padded_colors))
+    torch.testing.assert_close(packed_grads[0], padded_grads[0][where], atol=1e-12, rtol=0)
+    torch.testing.assert_close(packed_grads[1], padded_grads[1][where], atol=1e-12, rtol=0)
+    assert packed_grads[0].abs().min() > 0
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("opaque", [1e30, math.inf])
+def test_packed_transmittance_is_exact_after_huge_optical_depths_and_other_rays_do_not_notice(dtype, opaque):
+    optical_depth = torch.tensor([0.5, opaque, 2.0, 0.3, 0.2, opaque, 1.0, 0.7], dtype=dtype)
+    ray_indices = torch.tensor([0, 0, 0, 1, 1, 2, 2, 3])
+    transmittance = transmittance_from_optical_depth(optical_depth, ray_indices)
+    expected = torch.tensor([1.0, math.exp(-0.5), 0.0, 1.0, math.exp(-0.3), 1.0, 0.0, 1.0], dtype=dtype)
+    assert not transmittance.isnan().any()
+    torch.testing.assert_close(transmittance, expected, atol=0, rtol=1e-6 if dtype == torch.float32 else 1e-12)
+    assert transmittance[2] == 0 and transmittance[6] == 0
+
+
+def test_an_infinitely_dense_packed_sample_gives_finite_gradients_and_an_opaque_pixel():
+    samples = RaySamples(torch.tensor([1.0, 1.1, 1.2, 1.0, 1.1]), torch.tensor([1.1, 1.2, 1.3, 1.1, 1.2]),
+                         ray_indices=torch.tensor([0, 0, 0, 1, 1]), num_rays=2)
+    sigmas = torch.tensor([0.5, math.inf, 3.0, 0.5, 2.0], requires_grad=True)
+    colors = torch.rand(5, 3, requires_grad=True)
+    rendered = composite(sigmas, colors, samples, torch.ones(3))
+    assert rendered.opacity[0] == 1 and rendered.weights[2] == 0
+    torch.testing.assert_close(rendered.opacity[1], torch.tensor(1 - math.exp(-0.25)))
+    (rendered.color.sum() + rendered.depth.sum()).backward()
+    assert torch.isfinite(colors.grad).all() and torch.isfinite(sigmas.grad).all()

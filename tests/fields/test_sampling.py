@@ -1,9 +1,10 @@
-"""Stratified and importance sampling."""
+"""NeRF's samplers: stratified and importance sampling."""
 
 import numpy as np
 import torch
 
-from pointfield.fields.sampling import hierarchical_samples, importance_samples, sample_deltas, stratified_samples
+from pointfield.fields.rays import RaySamples
+from pointfield.fields.sampling.stratified import hierarchical_samples, importance_samples, stratified_samples
 
 
 def test_stratified_samples_fall_one_in_each_bin_and_are_sorted():
@@ -19,9 +20,9 @@ def test_stratified_without_jitter_takes_bin_centres():
     torch.testing.assert_close(stratified_samples(2.0, 6.0, 4, rays=1, jitter=False), torch.tensor([[2.5, 3.5, 4.5, 5.5]]))
 
 
-def test_deltas_tile_the_ray_up_to_far():
+def test_deltas_of_stratified_samples_tile_the_ray_up_to_far():
     t = stratified_samples(2.0, 6.0, 5, rays=3)
-    deltas = sample_deltas(t, 6.0)
+    deltas = RaySamples.from_points(t, 6.0).deltas
     torch.testing.assert_close(t[:, 0] + deltas.sum(-1), torch.full((3,), 6.0))
 
 

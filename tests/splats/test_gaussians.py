@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
+from pointfield.fields.encodings.spherical_harmonics import C0, rgb_to_sh_dc, sh_basis, sh_to_rgb
 from pointfield.splats.gaussians import Gaussians, covariances, quaternion_to_rotation
-from pointfield.splats.sh import C0, rgb_to_sh_dc, sh_basis, sh_to_rgb
 
 
 def test_gsplat_garden_points_initialise_a_model(shared_data):

@@ -19,21 +19,24 @@ so density depends on position only and colour on position and view direction.
 Density uses softplus rather than the paper's ReLU (as mip-NeRF does): a ReLU that starts
 negative everywhere has zero gradient and never recovers, which small CPU runs hit.
 
-Calling a model on rays returns a list of :class:`~pointfield.fields.rendering.RenderedRays`,
-one per pass (coarse first, the final render last); training adds a photometric loss per pass.
+Both are radiance fields (:class:`~pointfield.fields.field.RadianceField`): called on a
+:class:`~pointfield.fields.rays.RayBundle`, they return a
+:class:`~pointfield.fields.field.FieldOutput` with one
+:class:`~pointfield.fields.rendering.RenderedRays` per pass (coarse first, the final render
+last); training adds a photometric loss per pass.
 """
 
 from __future__ import annotations
-
-from typing import Any
 
 import torch
 from torch import nn
 from torch.nn import functional as F
 
-from pointfield.fields.encodings import DIRECTION_FREQUENCIES, POSITION_FREQUENCIES, PositionalEncoding
-from pointfield.fields.rendering import RenderedRays, render_rays
-from pointfield.fields.sampling import hierarchical_samples, stratified_samples
+from pointfield.fields.encodings.fourier import DIRECTION_FREQUENCIES, POSITION_FREQUENCIES, PositionalEncoding
+from pointfield.fields.field import FieldOutput, RadianceField
+from pointfield.fields.rays import RayBundle, RaySamples
+from pointfield.fields.rendering import render_rays
+from pointfield.fields.sampling.stratified import hierarchical_samples, stratified_samples
 
 
 class RadianceMLP(nn.Module):
@@ -79,7 +82,7 @@ class RadianceMLP(nn.Module):
         return sigma, rgb
 
 
-class TinyNeRF(nn.Module):
+class TinyNeRF(RadianceField):
     """The lesson's TinyNeRF: a 4 x 128 field rendered with ``samples`` stratified samples per ray."""
 
     def __init__(self, samples: int = 64):
@@ -89,20 +92,18 @@ class TinyNeRF(nn.Module):
 
     def forward(
         self,
-        origins: torch.Tensor,
-        directions: torch.Tensor,
-        near: torch.Tensor,
-        far: torch.Tensor,
+        rays: RayBundle,
         background: torch.Tensor | None = None,
         jitter: bool = False,
         generator: torch.Generator | None = None,
-    ) -> list[RenderedRays]:
-        """Render rays ``(R, 3)`` between ``near`` and ``far`` ``(R,)``: a one-element list."""
-        t = stratified_samples(near, far, self.samples, jitter=jitter, generator=generator)
-        return [render_rays(self.field, origins, directions, t, far, background)]
+    ) -> FieldOutput:
+        """Render ``rays``: one pass."""
+        t = stratified_samples(rays.near, rays.far, self.samples, jitter=jitter, generator=generator)
+        samples = RaySamples.from_points(t, rays.far)
+        return FieldOutput([render_rays(self.field, rays, samples, background)], samples=len(samples))
 
 
-class NeRF(nn.Module):
+class NeRF(RadianceField):
     """NeRF: coarse and fine 8 x 256 fields with a skip, hierarchical sampling between them."""
 
     def __init__(self, coarse_samples: int = 64, fine_samples: int = 128):
@@ -114,61 +115,18 @@ class NeRF(nn.Module):
 
     def forward(
         self,
-        origins: torch.Tensor,
-        directions: torch.Tensor,
-        near: torch.Tensor,
-        far: torch.Tensor,
+        rays: RayBundle,
         background: torch.Tensor | None = None,
         jitter: bool = False,
         generator: torch.Generator | None = None,
-    ) -> list[RenderedRays]:
-        """Render rays ``(R, 3)`` between ``near`` and ``far`` ``(R,)``: ``[coarse, fine]``."""
-        t_coarse = stratified_samples(near, far, self.coarse_samples, jitter=jitter, generator=generator)
-        coarse = render_rays(self.coarse, origins, directions, t_coarse, far, background)
+    ) -> FieldOutput:
+        """Render ``rays``: passes ``[coarse, fine]``."""
+        t_coarse = stratified_samples(rays.near, rays.far, self.coarse_samples, jitter=jitter, generator=generator)
+        coarse_samples = RaySamples.from_points(t_coarse, rays.far)
+        coarse = render_rays(self.coarse, rays, coarse_samples, background)
         t_fine = hierarchical_samples(
-            t_coarse, coarse.weights, near, far, self.fine_samples, jitter=jitter, generator=generator
+            t_coarse, coarse.weights, rays.near, rays.far, self.fine_samples, jitter=jitter, generator=generator
         )
-        fine = render_rays(self.fine, origins, directions, t_fine, far, background)
-        return [coarse, fine]
-
-
-def _instant_ngp(**options: Any) -> nn.Module:
-    from pointfield.fields.ngp import InstantNGP
-
-    return InstantNGP(**options)
-
-
-MODELS: dict[str, Any] = {"tiny": TinyNeRF, "nerf": NeRF, "ngp": _instant_ngp}
-"""``--model`` name -> class."""
-
-
-def build_model(name: str, **options: Any) -> nn.Module:
-    """The model called ``name`` ("tiny", "nerf" or "ngp"), with constructor ``options``."""
-    if name not in MODELS:
-        raise ValueError(f"unknown NeRF model {name!r}; choose one of {', '.join(MODELS)}")
-    return MODELS[name](**options)
-
-
-@torch.no_grad()
-def render_in_chunks(
-    model: nn.Module,
-    origins: torch.Tensor,
-    directions: torch.Tensor,
-    near: torch.Tensor,
-    far: torch.Tensor,
-    background: torch.Tensor | None = None,
-    chunk: int = 4096,
-) -> dict[str, torch.Tensor]:
-    """The final pass's ``color`` ``(R, 3)``, ``depth`` ``(R,)``, ``opacity`` ``(R,)`` for many rays.
-
-    Renders ``chunk`` rays at a time without gradients and without jitter, so memory stays
-    bounded and the result is repeatable.
-    """
-    parts: dict[str, list[torch.Tensor]] = {"color": [], "depth": [], "opacity": []}
-    for start in range(0, origins.shape[0], chunk):
-        end = start + chunk
-        rendered = model(origins[start:end], directions[start:end], near[start:end], far[start:end], background)[-1]
-        parts["color"].append(rendered.color)
-        parts["depth"].append(rendered.depth)
-        parts["opacity"].append(rendered.opacity)
-    return {name: torch.cat(values) for name, values in parts.items()}
+        fine_samples = RaySamples.from_points(t_fine, rays.far)
+        fine = render_rays(self.fine, rays, fine_samples, background)
+        return FieldOutput([coarse, fine], samples=len(coarse_samples) + len(fine_samples))

@@ -33,7 +33,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from pointfield.splats.sh import rgb_to_sh_dc, sh_coefficient_count
+from pointfield.fields.encodings.spherical_harmonics import rgb_to_sh_dc, sh_coefficient_count
 
 PARAMETER_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 

@@ -26,6 +26,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from pointfield.clouds import read as read_cloud
+from pointfield.clouds import write as write_cloud
 from pointfield.clouds.cloud import PointCloud
 from pointfield.errors import FormatError
 from pointfield.splats.gaussians import Gaussians
@@ -33,10 +35,8 @@ from pointfield.splats.gaussians import Gaussians
 
 def read_splats(path: str | os.PathLike[str], dtype: torch.dtype = torch.float32) -> Gaussians:
     """Read a standard splat ``.ply`` into :class:`Gaussians` (all SH degrees active)."""
-    import pointfield
-
     path = Path(path)
-    cloud = pointfield.read(path, format="ply")
+    cloud = read_cloud(path, format="ply")
     if not isinstance(cloud, PointCloud):
         raise FormatError(path, "expected a PLY with x, y, z vertex properties (a splat file)")
     fields = cloud.fields
@@ -100,6 +100,4 @@ def splats_to_cloud(gaussians: Gaussians) -> PointCloud:
 
 def write_splats(path: str | os.PathLike[str], gaussians: Gaussians) -> None:
     """Write ``gaussians`` as a standard ``binary_little_endian`` splat ``.ply`` (atomically)."""
-    import pointfield
-
-    pointfield.write(Path(path), splats_to_cloud(gaussians), format="ply", encoding="binary_little_endian")
+    write_cloud(Path(path), splats_to_cloud(gaussians), format="ply", encoding="binary_little_endian")

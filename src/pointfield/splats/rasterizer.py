@@ -71,8 +71,8 @@ import torch
 import torch.nn.functional as F
 
 from pointfield.compiling import CompiledOrEager
+from pointfield.fields.encodings.spherical_harmonics import sh_to_rgb
 from pointfield.splats.gaussians import quaternion_to_rotation
-from pointfield.splats.sh import sh_to_rgb
 
 TILE_SIZE = 4
 SCREEN_DILATION = 0.3
@@ -194,7 +194,7 @@ def rasterization(
     - ``means`` ``(N, 3)``, ``quats`` ``(N, 4)`` wxyz, ``scales`` ``(N, 3)``, ``opacities`` ``(N,)``;
     - ``colors``: ``(N, D)`` per-splat values composited as they are (RGB, or any D features),
       or, with ``sh_degree`` given, SH coefficients ``(N, K, 3)`` evaluated per camera in the
-      direction from the camera centre to each mean (:func:`pointfield.splats.sh.sh_to_rgb`);
+      direction from the camera centre to each mean (:func:`pointfield.fields.encodings.spherical_harmonics.sh_to_rgb`);
     - ``viewmats`` ``(C, 4, 4)`` world-to-camera, ``Ks`` ``(C, 3, 3)``, image ``width`` x ``height``;
     - ``backgrounds`` ``(C, D)`` or ``(D,)``: added where the splats leave light through,
       ``colour + T_final * background`` (default: none, i.e. black);

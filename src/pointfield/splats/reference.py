@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import torch
 
+from pointfield.fields.encodings.spherical_harmonics import sh_to_rgb
 from pointfield.splats.gaussians import quaternion_to_rotation
 from pointfield.splats.rasterizer import (
     MAX_ALPHA,
@@ -21,7 +22,6 @@ from pointfield.splats.rasterizer import (
     SCREEN_DILATION,
     SIGMA_EXTENT,
 )
-from pointfield.splats.sh import sh_to_rgb
 
 
 def rasterization_reference(

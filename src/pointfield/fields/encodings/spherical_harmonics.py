@@ -1,6 +1,8 @@
-"""Real spherical harmonics up to degree 3: the view-dependent colour of a splat.
+"""Real spherical harmonics up to degree 3: an encoding of view directions.
 
-A splat's colour in direction ``d`` (unit, from the camera centre towards the splat) is
+:func:`sh_basis` encodes a unit direction for the fast radiance field's colour network
+(:mod:`pointfield.fields.ngp`); the splats use it for their view-dependent colour. A splat's
+colour in direction ``d`` (unit, from the camera centre towards the splat) is
 
     rgb(d) = max(0, sum_{l <= degree} sum_m c_lm Y_lm(d) + 0.5)
 

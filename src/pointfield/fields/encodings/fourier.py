@@ -1,4 +1,4 @@
-"""Encodings that let a small MLP represent fine detail: Fourier positional encoding.
+"""Fourier positional encoding: the encoding of NeRF's positions and view directions.
 
 An MLP fed raw coordinates learns smooth functions only (its spectral bias); NeRF maps each
 coordinate through sines and cosines of growing frequency first (Mildenhall et al. 2020, eq. 4):

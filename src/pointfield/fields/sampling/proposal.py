@@ -1,11 +1,10 @@
-"""Unbounded scenes: scene contraction and the proposal-network sampler (mip-NeRF 360, nerfacto).
+"""Unbounded scenes: the proposal-network sampler and its losses (mip-NeRF 360, nerfacto).
 
 A real capture sees the background out to the horizon, which no box holds. Two ideas from
-mip-NeRF 360 (Barron et al. 2022) make it tractable:
+mip-NeRF 360 (Barron et al. 2022) make it tractable: the scene contraction
+(:func:`~pointfield.fields.encodings.contraction.contract`), which fits all of space into the
+unit cube a hash grid covers, and
 
-- **Scene contraction** (:func:`contract`): space within ``radius`` of ``center`` is kept as it
-  is; everything beyond is squeezed into a shell so that all of space fits in a ball of radius
-  2 -- and, rescaled, in the unit cube a hash grid covers.
 - **Proposal sampling** (:class:`ProposalSampler`): small density-only fields
   (:class:`ProposalNetwork`) predict where along each ray the real field will put its weight, so
   that its few samples (48) land on surfaces instead of being spread over kilometres of empty
@@ -16,7 +15,7 @@ The proposal networks never see colour: they are trained by :func:`interlevel_lo
 which asks each proposal histogram to *bound from above* the real field's weights (the real
 field's weights are a constant there).
 
-Conventions (as in :mod:`pointfield.fields.sampling`): R rays, distances ``t`` along the ray
+Conventions (as in :mod:`pointfield.fields.sampling.stratified`): R rays, distances ``t`` along the ray
 directions, and bins given by their ``edges`` ``(R, K + 1)``, increasing; bin i is
 ``[t_i, t_{i+1})`` with weight ``w_i`` ``(R, K)``. Initial edges are spaced evenly in the
 *spacing* ``s`` of :func:`spacing_from_distance` -- linear in ``t`` up to ``linear_until``,
@@ -33,50 +32,14 @@ import torch
 from torch import nn
 
 from pointfield.errors import PointfieldError
-from pointfield.fields.hashgrid import HashEncoding
-from pointfield.fields.ngp import trunc_exp
+from pointfield.fields.activations import trunc_exp
+from pointfield.fields.encodings.hashgrid import HashEncoding
+from pointfield.fields.rays import RayBundle
 from pointfield.fields.rendering import render_weights_from_density
-from pointfield.fields.sampling import _ray_bounds, importance_samples, stratified_samples
+from pointfield.fields.sampling.stratified import as_near_far, importance_samples, stratified_samples
 
 INTERLEVEL_EPS = 1e-7
 """Keeps ``max(0, w - bound)^2 / w`` finite where the field's weight ``w`` is 0 (nerfacto's EPS)."""
-
-
-# -- scene contraction -------------------------------------------------------------------------------
-
-
-def contract(positions: torch.Tensor, center: torch.Tensor | Sequence[float], radius: float) -> torch.Tensor:
-    """Mip-NeRF 360 scene contraction (eq. 10) of world ``positions`` ``(..., 3)`` into ``[0, 1]^3``.
-
-    With ``x' = (x - center) / radius``::
-
-        contract(x') = x'                                  if ||x'|| <= 1
-                       (2 - 1 / ||x'||) x' / ||x'||        otherwise          (L2 norm)
-        unit(x)      = (contract(x') + 2) / 4
-
-    The ball of ``radius`` around ``center`` maps linearly onto the ball of radius 1/4 around
-    ``(1/2, 1/2, 1/2)``; the rest of space fills the shell out to radius 1/2, with points at
-    infinity on its surface. Continuous and once differentiable across ``||x'|| = 1``, with
-    finite gradients everywhere (also at the centre). Returns ``(..., 3)``.
-
-    Example::
-
-        >>> contract(torch.tensor([[0.0, 0, 0], [2.0, 0, 0], [1e9, 0, 0]]), torch.zeros(3), 1.0)
-        tensor([[0.5000, 0.5000, 0.5000],
-                [0.8750, 0.5000, 0.5000],
-                [1.0000, 0.5000, 0.5000]])
-    """
-    if not radius > 0:
-        raise PointfieldError(f"contraction radius must be positive, got {radius}")
-    center = torch.as_tensor(center, dtype=positions.dtype, device=positions.device)
-    scaled = (positions - center) / radius
-    squared_norm = (scaled * scaled).sum(dim=-1, keepdim=True)
-    # The outer branch sees norms >= 1 only, so torch.where's unused branch cannot put 0/0 (NaN)
-    # into the gradient at the centre.
-    norm = squared_norm.clamp_min(1.0).sqrt()
-    outside = (2 - 1 / norm) * (scaled / norm)
-    contracted = torch.where(squared_norm <= 1, scaled, outside)
-    return (contracted + 2) / 4
 
 
 # -- the proposal network ----------------------------------------------------------------------------
@@ -85,11 +48,11 @@ def contract(positions: torch.Tensor, center: torch.Tensor | Sequence[float], ra
 class ProposalNetwork(nn.Module):
     """Nerfacto's density-only proposal field: ``u (..., 3)`` in ``[0, 1]^3`` -> ``sigma (...)``.
 
-    A small :class:`~pointfield.fields.hashgrid.HashEncoding` (``levels`` L x
+    A small :class:`~pointfield.fields.encodings.hashgrid.HashEncoding` (``levels`` L x
     ``features_per_level`` F, ``2^log2_table_size`` entries per level, resolutions
     ``min_resolution`` .. ``max_resolution``) -> ``Linear(L F, hidden)`` -> ReLU ->
     ``Linear(hidden, 1)`` -> truncated exponential. Positions are already contracted
-    (:func:`contract`); ``backend`` is the hash grid's.
+    (:func:`~pointfield.fields.encodings.contraction.contract`); ``backend`` is the hash grid's.
     """
 
     def __init__(
@@ -168,7 +131,7 @@ def initial_bin_edges(
         raise PointfieldError(f"need at least one bin per ray, got count={count}")
     if not linear_until > 0:
         raise PointfieldError(f"linear_until must be a positive distance, got {linear_until}")
-    near, far = _ray_bounds(near, far, rays, device)
+    near, far = as_near_far(near, far, rays, device)
     s_near, s_far = spacing_from_distance(near, linear_until), spacing_from_distance(far, linear_until)
     # Interior edges at (k + u - 1/2) / count, k = 1 .. count-1: one stratified sample in each
     # of count - 1 equal bins of [1/2, count - 1/2] / count.
@@ -195,7 +158,7 @@ def proposal_anneal(step: int, anneal_steps: int = 1000, slope: float = 10.0) ->
 
 
 ToUnit = Callable[[torch.Tensor], torch.Tensor]
-"""World positions ``(..., 3)`` -> the proposal networks' ``[0, 1]^3`` (e.g. :func:`contract`)."""
+"""World positions ``(..., 3)`` -> the proposal networks' ``[0, 1]^3`` (e.g. a scene contraction)."""
 
 
 class ProposalSampler(nn.Module):
@@ -250,30 +213,27 @@ class ProposalSampler(nn.Module):
 
     def forward(
         self,
-        origins: torch.Tensor,
-        directions: torch.Tensor,
-        near: torch.Tensor | float,
-        far: torch.Tensor | float,
+        rays: RayBundle,
         to_unit: ToUnit,
         *,
         jitter: bool = True,
         generator: torch.Generator | None = None,
         anneal: float = 1.0,
     ) -> tuple[torch.Tensor, list[tuple[torch.Tensor, torch.Tensor]]]:
-        """Bin edges for the field on rays ``origins + t directions`` (``(R, 3)`` each), ``near <= t <= far``.
+        """Bin edges for the field on ``rays``, between each ray's ``near`` and ``far``.
 
-        ``near``, ``far``: ``(R,)`` or floats. ``to_unit`` maps world positions into the proposal
-        networks' unit cube. ``jitter``: random initial edges and inverse-CDF draws (training)
-        or evenly spaced ones (rendering); ``generator`` seeds them. ``anneal``: exponent on the
-        proposal weights before resampling (:func:`proposal_anneal`).
+        ``to_unit`` maps world positions into the proposal networks' unit cube. ``jitter``:
+        random initial edges and inverse-CDF draws (training) or evenly spaced ones (rendering);
+        ``generator`` seeds them. ``anneal``: exponent on the proposal weights before resampling
+        (:func:`proposal_anneal`).
 
-        Returns ``(edges (R, final_samples + 1), rounds)``: the field's bins (no gradient) and,
+        Returns ``(edges (R, final_samples + 1), rounds)``: the field's bins (no gradient; see
+        :meth:`RaySamples.from_bin_edges <pointfield.fields.rays.RaySamples.from_bin_edges>`) and,
         per proposal round, ``(edges (R, K_i + 1), weights (R, K_i))`` whose weights carry the
         proposal network's gradient, for :func:`interlevel_loss`.
         """
-        rays = origins.shape[0]
-        near, far = _ray_bounds(near, far, rays, origins.device)
-        near, far = near.to(origins.dtype).expand(rays), far.to(origins.dtype).expand(rays)
+        origins, directions = rays.origins, rays.directions
+        near, far = rays.near.to(origins.dtype), rays.far.to(origins.dtype)
         edges = initial_bin_edges(near, far, self.proposal_samples[0], jitter=jitter, generator=generator,
                                   linear_until=self.linear_until)
         next_counts = (*self.proposal_samples[1:], self.final_samples)

@@ -1,9 +1,10 @@
-"""Where along each ray a radiance field is evaluated: stratified and importance sampling.
+"""NeRF's samplers: stratified samples, and importance samples from a coarse pass's weights.
 
 Conventions: a batch of R rays, each sampled between ``near`` and ``far`` (distances along unit
-directions). Samples ``t`` are ``(R, K)``, sorted along each ray. Sample ``t_i`` stands for the
-interval ``[t_i, t_{i+1})`` of the ray, the last one for ``[t_{K-1}, far)``; :func:`sample_deltas`
-gives the lengths ``delta_i`` the renderer needs.
+directions). These building blocks return distances ``t`` ``(R, K)``, sorted along each ray;
+:meth:`RaySamples.from_points(t, far) <pointfield.fields.rays.RaySamples.from_points>` turns
+them into the samples a renderer takes, sample ``t_i`` standing for the interval
+``[t_i, t_{i+1})`` of the ray and the last one for ``[t_{K-1}, far)``.
 
 - :func:`stratified_samples`: K equal bins, one sample in each (uniformly at random within its
   bin while training, so that over many steps the field is queried everywhere; at the bin
@@ -40,7 +41,7 @@ def stratified_samples(
         >>> stratified_samples(2.0, 6.0, 4, rays=1, jitter=False)
         tensor([[2.5000, 3.5000, 4.5000, 5.5000]])
     """
-    near, far = _ray_bounds(near, far, rays, device)
+    near, far = as_near_far(near, far, rays, device)
     offsets = torch.arange(count, device=near.device, dtype=near.dtype)
     if jitter:
         offsets = offsets + torch.rand(
@@ -49,16 +50,6 @@ def stratified_samples(
     else:
         offsets = (offsets + 0.5).expand(near.shape[0], count)
     return near[:, None] + (far - near)[:, None] * offsets / count
-
-
-def sample_deltas(t: torch.Tensor, far: torch.Tensor | float) -> torch.Tensor:
-    """Interval lengths ``delta_i = t_{i+1} - t_i``, the last one ``far - t_{K-1}``: ``(R, K)``.
-
-    ``far`` is a float or ``(R,)``. The intervals tile ``[t_0, far)``, so a field that is opaque
-    everywhere past ``t_0`` composites to opacity 1 whatever K is.
-    """
-    far = torch.as_tensor(far, dtype=t.dtype, device=t.device).expand(t.shape[0])
-    return torch.diff(t, dim=-1, append=far[:, None]).clamp_min(0)
 
 
 def importance_samples(
@@ -117,7 +108,7 @@ def hierarchical_samples(
     midpoint with its left neighbour to the midpoint with its right one (``near`` and ``far`` at
     the ends), so every coarse weight shapes the PDF. Returns ``(R, K + count)`` sorted.
     """
-    near, far = _ray_bounds(near, far, t_coarse.shape[0], t_coarse.device)
+    near, far = as_near_far(near, far, t_coarse.shape[0], t_coarse.device)
     t_coarse = t_coarse.detach()
     midpoints = 0.5 * (t_coarse[:, 1:] + t_coarse[:, :-1])
     edges = torch.cat([near[:, None].to(t_coarse.dtype), midpoints, far[:, None].to(t_coarse.dtype)], dim=-1)
@@ -125,8 +116,8 @@ def hierarchical_samples(
     return torch.sort(torch.cat([t_coarse, fine], dim=-1), dim=-1).values
 
 
-def _ray_bounds(near, far, rays: int | None, device) -> tuple[torch.Tensor, torch.Tensor]:
-    """``near`` and ``far`` as ``(R,)`` tensors of one floating dtype."""
+def as_near_far(near, far, rays: int | None, device) -> tuple[torch.Tensor, torch.Tensor]:
+    """``near`` and ``far`` (floats or tensors) as ``(R,)`` tensors of one floating dtype; ``rays``: R for two floats."""
     near = torch.as_tensor(near, device=device)
     far = torch.as_tensor(far, device=near.device)
     if not near.is_floating_point():

@@ -1,0 +1,57 @@
+"""Which box to reconstruct (issue 6): bounded objects, unbounded photos, boxes given by hand."""
+
+import dataclasses
+import math
+
+import pytest
+import torch
+
+from pointfield.fields.scene_box import scene_bounds
+from pointfield.scenes import read_scene, synthetic_scene
+
+
+@pytest.fixture(scope="module")
+def cube_scene():
+    return synthetic_scene("cube", views=12, size=16)
+
+
+def test_a_synthetic_scene_with_alpha_is_bounded_by_its_aabb(cube_scene):
+    box, unbounded = scene_bounds(cube_scene)
+    assert unbounded is False
+    assert box == [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
+    assert scene_bounds(cube_scene, "bounded") == (box, False)
+
+
+def test_photos_without_alpha_are_unbounded_around_where_the_cameras_look(cube_scene):
+    frames = [dataclasses.replace(frame, image=frame.image[..., :3]) for frame in cube_scene.frames]
+    photos = dataclasses.replace(cube_scene, frames=frames)
+    box, unbounded = scene_bounds(photos)
+    assert unbounded is True
+    box = torch.tensor(box, dtype=torch.float64)
+    # Cameras 4 units from the origin, looking at it, field of view 0.6911 rad: half-width
+    # 1.1 * 4 * tan(0.6911 / 2).
+    torch.testing.assert_close(box.mean(dim=0), torch.zeros(3, dtype=torch.float64), atol=1e-6, rtol=0)
+    torch.testing.assert_close(box[1] - box[0], torch.full((3,), 2 * 1.1 * 4 * math.tan(0.6911 / 2),
+                                                          dtype=torch.float64), atol=2e-3, rtol=0)
+    assert scene_bounds(cube_scene, "unbounded") == (box.tolist(), True)
+
+
+def test_six_numbers_are_a_bounded_box(cube_scene):
+    assert scene_bounds(cube_scene, [-1, -2, -3, 1, 2, 3.5]) == ([[-1.0, -2.0, -3.0], [1.0, 2.0, 3.5]], False)
+
+
+@pytest.mark.parametrize("scene_box, message", [("everything", "auto, bounded, unbounded or six numbers"),
+                                                ([1, 2, 3, 4, 5], "six numbers")])
+def test_a_bad_scene_box_is_a_value_error(cube_scene, scene_box, message):
+    with pytest.raises(ValueError, match=message):
+        scene_bounds(cube_scene, scene_box)
+
+
+def test_lego_is_bounded_by_a_box_around_the_model(shared_data):
+    scene = read_scene(shared_data / "nerf" / "lego_blender")
+    box, unbounded = scene_bounds(scene)
+    assert unbounded is False
+    box = torch.tensor(box, dtype=torch.float64)
+    model_extent = torch.tensor([[-0.7, -1.2, -0.4], [0.7, 1.0, 1.1]], dtype=torch.float64)  # lego's bulldozer
+    assert bool((box[0] < model_extent[0]).all() and (box[1] > model_extent[1]).all())
+    assert bool((box[1] - box[0] < 4).all())
