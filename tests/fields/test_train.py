@@ -109,7 +109,7 @@ def test_a_run_of_another_task_is_refused_and_the_output_is_left_alone(tmp_path,
     out = tmp_path / "earlier.gif"
     out.write_bytes(b"an earlier render")
     assert main(["nerf", "render", str(classify_run), "--out", str(out), "--device", "cpu"]) == 1
-    assert "not a NeRF run (task 'classify', model 'pointnet')" in capsys.readouterr().err
+    assert "a run of task 'classify', not 'nerf'" in capsys.readouterr().err
     assert out.read_bytes() == b"an earlier render"
 
 

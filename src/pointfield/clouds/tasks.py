@@ -243,6 +243,8 @@ class CloudTask(Task):
         return Step(loss, {"accuracy": float(correct)}, {"regulariser": regulariser})
 
     def evaluate(self, epoch: int) -> dict[str, float]:
+        if self.distributed is not None:
+            self.distributed.broadcast_buffers(self.model)  # one model scored, and saved, on every rank
         self.confusion = confusion_on(
             self.model, self.test_set, self.name, self.config, self.collate, self.device, self.distributed
         )

@@ -15,9 +15,8 @@ import torch
 from torch import nn
 
 from pointfield.errors import PointfieldError
-from pointfield.fields.field import RadianceField
+from pointfield.fields.field import RadianceField, render_in_chunks
 from pointfield.fields.models import MODELS, build_model
-from pointfield.fields.nerf import render_in_chunks
 from pointfield.fields.rays import RayBundle
 from pointfield.scenes.cameras import Cameras
 from pointfield.scenes.heldout import View, ray_bounds

@@ -51,6 +51,16 @@ class Distributed:
     def barrier(self) -> None:
         dist.barrier()
 
+    def broadcast_buffers(self, model: nn.Module) -> None:
+        """Give every process rank 0's buffers (BatchNorm running statistics), in place.
+
+        DDP averages gradients, so parameters agree across processes; buffers are updated by
+        each process's own batches and drift apart after the last step. Evaluating -- or
+        saving -- without this would score a different model on every rank.
+        """
+        for buffer in model.buffers():
+            dist.broadcast(buffer, src=0)
+
 
 def launched_by_torchrun() -> bool:
     return int(os.environ.get("WORLD_SIZE", "1")) > 1
