@@ -72,7 +72,7 @@ from laspy.header import GlobalEncoding
 from laspy.point import dims as laspy_dims
 from laspy.vlrs.vlrlist import VLRList
 
-from pointfield import __version__
+from pointfield.version import __version__
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats.columns import cloud_to_columns, columns_to_cloud_parts
 from pointfield.clouds.formats.registry import Format, register
