@@ -74,7 +74,11 @@ from laspy.vlrs.vlrlist import VLRList
 
 from pointfield.version import __version__
 from pointfield.clouds.cloud import PointCloud
-from pointfield.clouds.formats.columns import cloud_to_columns, columns_to_cloud_parts
+from pointfield.clouds.formats.columns import (
+    cloud_to_columns,
+    columns_to_cloud_parts,
+    group_components,
+)
 from pointfield.clouds.formats.registry import Format, register
 from pointfield.errors import FormatError
 
@@ -484,7 +488,10 @@ def _cloud_parts(
             values = columns[name] = np.empty((count, *storage[name].shape), storage[name].base)
             steps.append(partial(_copy_into, values, name))
     _run_in_blocks(steps, records)
-    _, fields = columns_to_cloud_parts(_group_components(columns), path)
+    _, fields = columns_to_cloud_parts(
+        # How write_las stores fields of more than three components (see the module docstring).
+        group_components(columns, min_components=4), path
+    )
     return points, fields
 
 
@@ -547,29 +554,6 @@ def _usable_cpus() -> int:
     if hasattr(os, "sched_getaffinity"):
         return len(os.sched_getaffinity(0))
     return os.cpu_count() or 1
-
-
-def _group_components(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Join extra dimensions ``name[0] .. name[K-1]`` (K > 3, one dtype) into ``(N, K)`` ``name``.
-
-    That is how :func:`write_las` stores fields of more than three components.
-    """
-    grouped: dict[str, np.ndarray] = {}
-    names = list(columns)
-    start = 0
-    while start < len(names):
-        base = names[start].removesuffix("[0]")
-        count = 0
-        while start + count < len(names) and names[start + count] == f"{base}[{count}]":
-            count += 1
-        parts = [columns[name] for name in names[start : start + count]]
-        if count > 3 and base not in columns and len({p.dtype for p in parts}) == 1:
-            grouped[base] = np.stack(parts, axis=1)
-            start += count
-        else:
-            grouped[names[start]] = columns[names[start]]
-            start += 1
-    return grouped
 
 
 def _metadata(header: laspy.LasHeader, layout: _Layout) -> dict[str, Any]:

@@ -61,7 +61,11 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 
 from pointfield.clouds.cloud import PointCloud
-from pointfield.clouds.formats.columns import cloud_to_columns, columns_to_cloud_parts
+from pointfield.clouds.formats.columns import (
+    cloud_to_columns,
+    columns_to_cloud_parts,
+    group_components,
+)
 from pointfield.clouds.formats.registry import Format, register
 from pointfield.errors import FormatError
 
@@ -84,7 +88,6 @@ COLOR_COMPONENTS = frozenset(
 
 _INTEGER = re.compile(rb"[+-]?[0-9]+")
 _SEPARATORS = re.compile(r"[\s,;]+")
-_COMPONENT = re.compile(r"(.+)\[([0-9]+)\]")
 _BYTE_SEPARATORS = re.compile(rb"[\s,;]+")
 # What the reader accepts as a column name (see _is_name_row).
 _WRITABLE_NAME = re.compile(r"[A-Za-z_][^\s,;#\"]*")
@@ -136,7 +139,7 @@ def read_text(path: Path, columns: str | Sequence[str] | None = None) -> PointCl
     if guessed and names[3:] == ["red", "green", "blue"] and _are_normals(parsed[3:]):
         names[3:] = ["nx", "ny", "nz"]
     raw = dict(zip(names, parsed, strict=True))
-    named = _group_components(_with_color_dtype(raw, preamble, names))
+    named = group_components(_with_color_dtype(raw, preamble, names))
     points, fields = columns_to_cloud_parts(named, path)
     if points is None:
         raise FormatError(
@@ -429,26 +432,6 @@ def _with_color_dtype(
         return columns
     dtype = np.uint8 if high <= 255 else np.uint16
     return {name: v.astype(dtype) if name in colors else v for name, v in columns.items()}
-
-
-def _group_components(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """``name[0] ... name[K-1]``, in that order, become one ``(N, K)`` column ``name``."""
-    grouped: dict[str, np.ndarray] = {}
-    names = list(columns)
-    i = 0
-    while i < len(names):
-        match = _COMPONENT.fullmatch(names[i])
-        if match and match.group(2) == "0":
-            base, k = match.group(1), 1
-            while i + k < len(names) and names[i + k] == f"{base}[{k}]":
-                k += 1
-            if base not in columns and base not in grouped:
-                grouped[base] = np.stack([columns[n] for n in names[i : i + k]], axis=1)
-                i += k
-                continue
-        grouped[names[i]] = columns[names[i]]
-        i += 1
-    return grouped
 
 
 # ----------------------------------------------------------------------------------------------
