@@ -72,7 +72,6 @@ from laspy.header import GlobalEncoding
 from laspy.point import dims as laspy_dims
 from laspy.vlrs.vlrlist import VLRList
 
-from pointfield.version import __version__
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats.columns import (
     cloud_to_columns,
@@ -81,6 +80,7 @@ from pointfield.clouds.formats.columns import (
 )
 from pointfield.clouds.formats.registry import Format, register
 from pointfield.errors import FormatError
+from pointfield.version import __version__
 
 SIGNATURE = b"LASF"
 
