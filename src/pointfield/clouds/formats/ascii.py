@@ -269,18 +269,27 @@ def _nth_line_end(data: bytes | bytearray, low: int, high: int, needed: int) -> 
 # Writing
 
 
-def write_rows(file: BinaryIO, columns: Sequence[np.ndarray], delimiter: str = " ") -> None:
+def write_rows(
+    file: BinaryIO,
+    columns: Sequence[np.ndarray],
+    delimiter: str = " ",
+    floats_as: type[np.floating] | None = None,
+) -> None:
     """Write ``(N,)`` columns as N lines of numbers, by pyarrow's CSV writer.
 
     Each column is printed in its own dtype: floats in the shortest text that reads back as the
     same value of that dtype (NaN and infinities as ``nan``, ``inf``, ``-inf``), integers as
-    integers, booleans as 0 / 1.
+    integers, booleans as 0 / 1. ``floats_as`` prints every float column as that type instead
+    (``np.float64`` for formats whose readers give float64: a float32 then prints as its exact
+    float64 value, where its own shortest text would read back as another float64).
     """
     if not columns:
         return
     arrays = {}
     for i, values in enumerate(columns):
-        if values.dtype.kind == "b":
+        if floats_as is not None and values.dtype.kind == "f":
+            values = values.astype(floats_as, copy=False)
+        elif values.dtype.kind == "b":
             values = values.astype(np.uint8)
         values = values.astype(values.dtype.newbyteorder("="), copy=False)
         arrays[f"c{i}"] = pa.array(np.ascontiguousarray(values))

@@ -79,10 +79,10 @@ from typing import BinaryIO
 
 import lzf
 import numpy as np
-import pyarrow as pa
-import pyarrow.csv as pa_csv
 
 from pointfield.clouds.cloud import PointCloud, Records
+from pointfield.clouds.formats.ascii import TableError, read_table, single_spaced, write_rows
+from pointfield.clouds.formats.binary import check_size, map_file, read_records, record_dtype
 from pointfield.clouds.formats.columns import PCD_NAMES, cloud_to_columns, columns_to_cloud_parts
 from pointfield.clouds.formats.registry import Format, register
 from pointfield.errors import FormatError
@@ -391,32 +391,21 @@ def _single_count(values: dict[str, list[str]], keyword: str, path: Path) -> int
 def _read_binary(
     file: BinaryIO, header: PcdHeader, available: int, path: Path
 ) -> dict[str, np.ndarray]:
-    """Columns of ``DATA binary``: views into one structured array read with np.fromfile."""
-    needed = header.points * header.point_size
-    if needed > available:
-        raise FormatError(
-            path,
-            f"DATA binary needs {needed} bytes ({header.points} points x {header.point_size} "
-            f"bytes) but only {available} follow the header",
-        )
-    names, formats, offsets = [], [], []
+    """Columns of ``DATA binary``: views into the points' records, mapped from the file."""
+    check_size(path, "header", header.points, header.point_size, available, unit="points")
+    fields, offsets = [], []
     offset = 0
     for f in header.fields:
         if not f.is_padding:
-            names.append(f.name)
             if f.is_packed_color:  # the word's 4 bytes, B G R A, ready for decoding
-                formats.append(np.dtype(("u1", (4,))))
+                fields.append((f.name, np.dtype("u1"), (4,)))
             else:
-                formats.append(f.dtype if f.count == 1 else np.dtype((f.dtype, (f.count,))))
+                fields.append((f.name, f.dtype, () if f.count == 1 else (f.count,)))
             offsets.append(offset)
         offset += f.nbytes
-    layout = np.dtype(
-        {"names": names, "formats": formats, "offsets": offsets, "itemsize": header.point_size}
-    )
-    records = np.fromfile(file, dtype=layout, count=header.points)
-    if len(records) != header.points:  # the file shrank between the size check and the read
-        raise FormatError(path, f"DATA binary ended after {len(records)} of {header.points} points")
-    return {name: records[name] for name in names}
+    layout = record_dtype(fields, "<", offsets, header.point_size)
+    records = read_records(map_file(file), layout, header.points, header.data_offset)
+    return {name: records[name] for name, *_ in fields}
 
 
 def _read_compressed(
@@ -482,10 +471,10 @@ def _columns_of(data: bytes, header: PcdHeader) -> dict[str, np.ndarray]:
 
 
 def _read_ascii(data: bytes, header: PcdHeader, path: Path) -> dict[str, np.ndarray]:
-    """Columns of ``DATA ascii``, parsed by pyarrow's CSV reader with spaces as separators.
+    """Columns of ``DATA ascii``, one line per point, values one space apart.
 
-    Files with tabs, repeated or trailing spaces are normalised to single spaces and parsed
-    again. ``nan``, ``inf`` and ``-inf`` are accepted for floats.
+    Files with tabs, repeated or trailing spaces are made single-spaced and parsed again.
+    ``nan``, ``inf`` and ``-inf`` are accepted for floats.
     """
     n = header.points
     values_per_point = sum(f.count for f in header.fields)
@@ -498,70 +487,40 @@ def _read_ascii(data: bytes, header: PcdHeader, path: Path) -> dict[str, np.ndar
             f"DATA ascii has {len(data)} bytes, too few for {n} points of {values_per_point} "
             f"values",
         )
-    column_types = {}
-    index = 0
-    for f in header.fields:
-        for _ in range(f.count):
-            column_types[f"f{index}"] = _arrow_type(f)
-            index += 1
+    column_types = [_text_dtype(f) for f in header.fields for _ in range(f.count)]
     try:
-        table = _parse_ascii_table(data, column_types, values_per_point)
-    except (pa.ArrowException, ValueError):
-        normalised = re.sub(rb"[ \t\r\f\v]+", b" ", data)
-        normalised = re.sub(rb" ?\n ?", b"\n", normalised).strip()
+        parsed = read_table(data, column_types)
+    except TableError:
         try:
-            table = _parse_ascii_table(normalised, column_types, values_per_point)
-        except pa.ArrowException as error:
-            raise FormatError(path, f"DATA ascii: {_first_line(error)}") from None
-        except ValueError as error:
+            parsed = read_table(single_spaced(data), column_types)
+        except TableError as error:
             raise FormatError(path, f"DATA ascii: {error}") from None
-    if table.num_rows != n:
-        raise FormatError(path, f"DATA ascii has {table.num_rows} rows but POINTS says {n}")
+    rows = len(parsed[0]) if parsed else 0
+    if rows != n:
+        raise FormatError(path, f"DATA ascii has {rows} rows but POINTS says {n}")
     columns = {}
     index = 0
     for f in header.fields:
         first, index = index, index + f.count
         if f.is_padding:
             continue
-        parts = [table.column(k).to_numpy() for k in range(first, index)]
+        parts = parsed[first:index]
         if f.is_packed_color:
             columns[f.name] = _packed_word_from_text(parts[0], f).view(np.uint8).reshape(n, 4)
         elif f.count == 1:
-            columns[f.name] = parts[0].astype(f.dtype, copy=False)
+            columns[f.name] = parts[0]
         else:
-            columns[f.name] = np.stack(parts, axis=1).astype(f.dtype, copy=False)
+            columns[f.name] = np.stack(parts, axis=1)
     return columns
 
 
-def _arrow_type(f: PcdField) -> pa.DataType:
+def _text_dtype(f: PcdField) -> np.dtype | None:
+    """The dtype a field's text is parsed as; None leaves padding unparsed."""
     if f.is_padding:
-        return pa.string()
+        return None
     if f.is_packed_color:
-        return pa.uint32() if f.type == "U" else pa.float64()
-    if f.type == "F" and f.size == 2:  # pyarrow parses no float16; float32 holds every value
-        return pa.float32()
-    return pa.from_numpy_dtype(f.dtype.newbyteorder("="))
-
-
-def _parse_ascii_table(data: bytes, column_types: dict, values_per_point: int) -> pa.Table:
-    table = pa_csv.read_csv(
-        pa.py_buffer(data),
-        read_options=pa_csv.ReadOptions(autogenerate_column_names=True),
-        parse_options=pa_csv.ParseOptions(delimiter=" ", quote_char=False),
-        convert_options=pa_csv.ConvertOptions(
-            column_types=column_types, null_values=[], strings_can_be_null=False
-        ),
-    )
-    # A trailing space on every line adds one empty column, which is harmless.
-    if table.num_columns == values_per_point + 1:
-        trailing = table.column(values_per_point)
-        if trailing.null_count == table.num_rows:
-            table = table.drop_columns([table.column_names[-1]])
-    if table.num_columns != values_per_point:
-        raise ValueError(
-            f"rows have {table.num_columns} values but the header declares {values_per_point}"
-        )
-    return table
+        return np.dtype(np.uint32) if f.type == "U" else np.dtype(np.float64)
+    return f.dtype
 
 
 def _packed_word_from_text(values: np.ndarray, f: PcdField) -> np.ndarray:
@@ -577,10 +536,6 @@ def _packed_word_from_text(values: np.ndarray, f: PcdField) -> np.ndarray:
     if whole:
         return values.astype("<u4")
     return values.astype("<f4").view("<u4")
-
-
-def _first_line(error: Exception) -> str:
-    return str(error).strip().splitlines()[0][:200] if str(error).strip() else type(error).__name__
 
 
 def _assemble(
@@ -752,9 +707,7 @@ def _write_binary(
     file: BinaryIO, columns: Mapping[str, np.ndarray], fields: list[PcdField], n: int
 ) -> None:
     """The points one after another, each its fields packed in order (np.dtype packs them)."""
-    layout = np.dtype(
-        [(f.name, f.dtype if f.count == 1 else (f.dtype, (f.count,))) for f in fields]
-    )
+    layout = record_dtype([(f.name, f.dtype, () if f.count == 1 else (f.count,)) for f in fields], "<")
     records = np.empty(n, layout)
     for f in fields:
         records[f.name] = columns[f.name]
@@ -789,17 +742,13 @@ def _write_compressed(
 
 
 def _write_ascii(file: BinaryIO, columns: Mapping[str, np.ndarray]) -> None:
-    """One line per point; floats in their shortest round-trip text (pyarrow's CSV writer)."""
-    arrays = {}
-    for name, values in columns.items():
-        values = values.astype(values.dtype.newbyteorder("="), copy=False)
-        for k, component in enumerate(values.T if values.ndim == 2 else [values]):
-            arrays[f"{name}.{k}"] = pa.array(np.ascontiguousarray(component))
-    pa_csv.write_csv(
-        pa.table(arrays),
-        file,
-        pa_csv.WriteOptions(include_header=False, delimiter=" ", quoting_style="none"),
-    )
+    """One line per point; floats in their shortest round-trip text for their own dtype."""
+    components = [
+        component
+        for values in columns.values()
+        for component in (values.T if values.ndim == 2 else [values])
+    ]
+    write_rows(file, components)
 
 
 register(
