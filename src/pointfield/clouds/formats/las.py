@@ -51,7 +51,6 @@ failure (including lazrs panics) becomes a :class:`FormatError` naming the file.
 
 from __future__ import annotations
 
-import mmap
 import os
 import struct
 import warnings
@@ -73,6 +72,7 @@ from laspy.point import dims as laspy_dims
 from laspy.vlrs.vlrlist import VLRList
 
 from pointfield.clouds.cloud import PointCloud
+from pointfield.clouds.formats.binary import check_size, map_file, read_records
 from pointfield.clouds.formats.columns import (
     cloud_to_columns,
     columns_to_cloud_parts,
@@ -242,14 +242,9 @@ def _check_layout(path: Path, file: BinaryIO, size: int) -> _Layout:
     if record_length == 0 and point_count:
         raise FormatError(path, "point record length is 0")
     if not compressed:
-        available = size - offset_to_points
-        if point_count * record_length > available:
-            raise FormatError(
-                path,
-                f"header declares {point_count} points of {record_length} bytes "
-                f"({point_count * record_length} bytes) but only {available} bytes follow the "
-                "header",
-            )
+        check_size(
+            path, "header", point_count, record_length, size - offset_to_points, unit="points"
+        )
     laszip_record = None
     if compressed:
         found = [(start, length) for key, start, length in vlrs if key == _LASZIP_KEY]
@@ -432,10 +427,7 @@ def _map_records(
             f"point record length {layout.record_length} does not match point format "
             f"{layout.point_format} with its extra bytes ({dtype.itemsize} bytes)",
         )
-    if layout.point_count == 0:
-        return np.zeros(0, dtype)
-    mapped = mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ)
-    return np.frombuffer(mapped, dtype, layout.point_count, layout.offset_to_points)
+    return read_records(map_file(file), dtype, layout.point_count, layout.offset_to_points)
 
 
 def _cloud_parts(
