@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import struct
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import lzf
 import numpy as np
@@ -32,11 +32,17 @@ def read_pcd(path: Path) -> PointCloud | Records:
     declared size is checked against the bytes the file really has before anything is allocated.
     """
     with open(path, "rb") as file:
-        header = parse_header(file.read(MAX_HEADER_BYTES), path)
+        head = file.read(MAX_HEADER_BYTES)
+        header = parse_header(head, path)
         available = os.fstat(file.fileno()).st_size - header.data_offset
+        if header.encoding == "binary":
+            check_size(path, "header", header.points, header.point_size, available, unit="points")
+            # A small file's head is the whole file, which is then not read a second time.
+            buffer = map_file(file, head)
+        del head  # else up to a megabyte, not to be held while the data is decoded
         file.seek(header.data_offset)
         if header.encoding == "binary":
-            columns = _read_binary(file, header, available, path)
+            columns = _read_binary(buffer, header)
         elif header.encoding == "binary_compressed":
             columns = _read_compressed(file, header, available, path)
         else:
@@ -44,11 +50,8 @@ def read_pcd(path: Path) -> PointCloud | Records:
     return _assemble(columns, header, path)
 
 
-def _read_binary(
-    file: BinaryIO, header: PcdHeader, available: int, path: Path
-) -> dict[str, np.ndarray]:
-    """Columns of ``DATA binary``: views into the points' records, mapped from the file."""
-    check_size(path, "header", header.points, header.point_size, available, unit="points")
+def _read_binary(buffer: Any, header: PcdHeader) -> dict[str, np.ndarray]:
+    """Columns of ``DATA binary``: views into the points' records in ``buffer``, the file."""
     fields, offsets = [], []
     offset = 0
     for f in header.fields:
@@ -60,7 +63,7 @@ def _read_binary(
             offsets.append(offset)
         offset += f.nbytes
     layout = record_dtype(fields, "<", offsets, header.point_size)
-    records = read_records(map_file(file), layout, header.points, header.data_offset)
+    records = read_records(buffer, layout, header.points, header.data_offset)
     return {name: records[name] for name, *_ in fields}
 
 

@@ -63,12 +63,15 @@ def read_ply(path: Path) -> PointCloud | Mesh | Records:
     """
     path = Path(path)
     with open(path, "rb") as file:
-        header = parse_header(path, file.read(HEADER_LIMIT))
+        head = file.read(HEADER_LIMIT)
+        header = parse_header(path, head)
         if header.encoding == "ascii":
             file.seek(header.data_offset)
             data = file.read()
         else:
-            data = map_file(file)
+            # A small file's head is the whole file, which is then not read a second time.
+            data = map_file(file, head)
+        del head  # else up to a megabyte, not to be held while the data is decoded
     for element in header.elements:
         if element.count and not element.properties:
             raise FormatError(
