@@ -33,6 +33,7 @@ import torch
 from pointfield.atomic import atomic_path
 from pointfield.clouds import ops
 from pointfield.clouds.cloud import PointCloud
+from pointfield.clouds.formats import formats, read
 from pointfield.clouds.mesh import Mesh
 from pointfield.errors import FormatError, PointfieldError
 
@@ -449,8 +450,6 @@ def _feature(cloud: PointCloud, name: str) -> np.ndarray:
 
 def _discover(root: Path) -> list[tuple[Path, str | None, str | None]]:
     """Every readable-looking file under ``root`` as (path, class or None, split or None)."""
-    from pointfield.clouds.formats import formats
-
     suffixes = {suffix for fmt in formats() for suffix in fmt.suffixes}
 
     def files_in(folder: Path) -> list[Path]:
@@ -535,9 +534,7 @@ class _FileLoader:
         return cloud
 
     def _read(self, path: Path) -> PointCloud:
-        import pointfield
-
-        data = pointfield.read(path)
+        data = read(path)
         if not isinstance(data, PointCloud):
             raise FormatError(path, "holds records without x y z coordinates, not a point cloud")
         if isinstance(data, Mesh) and len(data.faces):

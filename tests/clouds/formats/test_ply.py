@@ -339,7 +339,7 @@ def test_mesh_whose_faces_index_missing_vertices_is_refused(tmp_path):
 
 
 def test_ascii_is_written_in_batches_without_seams(tmp_path, monkeypatch):
-    monkeypatch.setattr(ply, "TEXT_WRITE_BATCH", 4)
+    monkeypatch.setattr(ply.writer, "TEXT_WRITE_BATCH", 4)
     for name, cloud in {"mesh": sample_mesh(), "polygons": polygon_mesh()}.items():
         write_ply(tmp_path / f"{name}.ply", cloud, "ascii")
         assert_same_cloud(cloud, read_ply(tmp_path / f"{name}.ply"))

@@ -7,6 +7,7 @@ directions here is what makes every format agree on ``colors`` and ``normals``.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 
 import numpy as np
@@ -25,6 +26,9 @@ GROUPS: dict[str, tuple[tuple[str, ...], ...]] = {
     ),
     "normals": (("nx", "ny", "nz"), ("normal_x", "normal_y", "normal_z")),
 }
+
+# A component of a split (N, K) field: ``name[0]`` .. ``name[K-1]``.
+_COMPONENT = re.compile(r"(.+)\[0\]")
 
 # How each family of formats spells the components when writing.
 PLY_NAMES = {"colors": ("red", "green", "blue", "alpha"), "normals": ("nx", "ny", "nz")}
@@ -102,3 +106,37 @@ def cloud_to_columns(
         else:
             columns[name] = values
     return columns
+
+
+def group_components(
+    columns: Mapping[str, np.ndarray], min_components: int = 1
+) -> dict[str, np.ndarray]:
+    """Join columns ``name[0] .. name[K-1]``, consecutive and in that order, into one ``(N, K)``
+    column ``name``: how formats without multi-component columns store ``(N, K)`` fields.
+
+    A run is joined when it has at least ``min_components`` columns of one dtype and ``name`` is
+    not a column already; every other column keeps its name. Order is kept.
+    """
+    grouped: dict[str, np.ndarray] = {}
+    names = list(columns)
+    start = 0
+    while start < len(names):
+        match = _COMPONENT.fullmatch(names[start])
+        count = 0
+        if match:
+            base = match.group(1)
+            while start + count < len(names) and names[start + count] == f"{base}[{count}]":
+                count += 1
+            parts = [columns[name] for name in names[start : start + count]]
+            if (
+                count >= min_components
+                and base not in columns
+                and base not in grouped
+                and len({part.dtype for part in parts}) == 1
+            ):
+                grouped[base] = np.stack(parts, axis=1)
+                start += count
+                continue
+        grouped[names[start]] = columns[names[start]]
+        start += 1
+    return grouped

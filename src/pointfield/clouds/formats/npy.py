@@ -45,6 +45,7 @@ from typing import IO, Any
 import numpy as np
 
 from pointfield.clouds.cloud import PointCloud, Records
+from pointfield.clouds.formats.binary import check_size, map_file, read_records
 from pointfield.clouds.formats.columns import columns_to_cloud_parts
 from pointfield.clouds.formats.registry import Format, register
 from pointfield.errors import FormatError
@@ -170,6 +171,10 @@ def read_array_header(stream: IO[bytes], path: Path, member: str | None = None) 
     return ArrayHeader(dtype, shape, fortran_order, start + length)
 
 
+def _declared(header: ArrayHeader) -> str:
+    return f"the header (a {header.dtype} array of shape {header.shape})"
+
+
 # ----------------------------------------------------------------------------------------------
 # .npy
 
@@ -179,25 +184,14 @@ def read_npy(path: Path) -> PointCloud | Records:
     size = path.stat().st_size
     with open(path, "rb") as file:
         header = read_array_header(file, path)
-    if header.nbytes > size - header.size:
-        raise FormatError(
-            path,
-            f"the header declares a {header.dtype} array of shape {header.shape} "
-            f"({header.nbytes} bytes) but only {size - header.size} bytes follow it",
+        available = size - header.size
+        check_size(
+            path, _declared(header), header.count, header.dtype.itemsize, available, unit="values"
         )
-    if header.nbytes == 0:
-        array = np.empty(header.shape, header.dtype)
-    else:
-        array = np.memmap(
-            path,
-            header.dtype,
-            mode="r",
-            offset=header.size,
-            shape=header.shape,
-            order="F" if header.fortran_order else "C",
-        )
+        values = read_records(map_file(file), header.dtype, header.count, header.size)
+    array = values.reshape(header.shape, order="F" if header.fortran_order else "C")
     cloud = cloud_from_array(array, path, "the array")
-    del array  # unmaps the file: every output array was copied out of it
+    del array, values  # unmaps the file: every output array was copied out of it
     cloud.metadata["encoding"] = "binary"
     return cloud
 
@@ -421,12 +415,14 @@ def _read_member(
     archive: zipfile.ZipFile, info: zipfile.ZipInfo, header: ArrayHeader, path: Path, name: str
 ) -> np.ndarray:
     """One member's array, after checking its declared size against the member's bytes."""
-    if header.nbytes > info.file_size - header.size:
-        raise FormatError(
-            path,
-            f"member {name!r} declares a {header.dtype} array of shape {header.shape} "
-            f"({header.nbytes} bytes) but holds only {info.file_size - header.size}",
-        )
+    check_size(
+        path,
+        f"member {name!r}: {_declared(header)}",
+        header.count,
+        header.dtype.itemsize,
+        info.file_size - header.size,
+        unit="values",
+    )
     array = np.empty(header.count, header.dtype)
     buffer = memoryview(array.view(np.uint8).reshape(-1))
     with archive.open(info) as stream:

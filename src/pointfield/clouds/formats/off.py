@@ -45,8 +45,8 @@ from pathlib import Path
 import numpy as np
 
 from pointfield.clouds.cloud import PointCloud
+from pointfield.clouds.formats.ascii import numbers_by_line, write_rows
 from pointfield.clouds.formats.registry import Format, register
-from pointfield.clouds.formats.text import numbers_by_line, write_number_rows
 from pointfield.clouds.mesh import Mesh
 from pointfield.errors import FormatError
 
@@ -278,12 +278,12 @@ def write_off(path: Path, cloud: PointCloud, encoding: str | None = None) -> Non
     )
     with open(path, "wb") as file:
         file.write(f"{keyword}\n{len(cloud)} {len(faces)} 0\n".encode())
-        write_number_rows(file, columns, " ")
+        write_rows(file, columns, floats_as=np.float64)
         if faces.dtype != object:
             face_columns = [np.full(len(faces), faces.shape[1], np.int64), *faces.T]
             if face_colors is not None:
                 face_columns.extend(face_colors.T)
-            write_number_rows(file, face_columns, " ")
+            write_rows(file, face_columns, floats_as=np.float64)
         else:
             file.write(_ragged_face_lines(faces, face_colors))
 

@@ -54,14 +54,16 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import BinaryIO
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.csv as pa_csv
 
 from pointfield.clouds.cloud import PointCloud
-from pointfield.clouds.formats.columns import cloud_to_columns, columns_to_cloud_parts
+from pointfield.clouds.formats.ascii import TableError, numbers_by_line, read_table, write_rows
+from pointfield.clouds.formats.columns import (
+    cloud_to_columns,
+    columns_to_cloud_parts,
+    group_components,
+)
 from pointfield.clouds.formats.registry import Format, register
 from pointfield.errors import FormatError
 
@@ -84,14 +86,10 @@ COLOR_COMPONENTS = frozenset(
 
 _INTEGER = re.compile(rb"[+-]?[0-9]+")
 _SEPARATORS = re.compile(r"[\s,;]+")
-_COMPONENT = re.compile(r"(.+)\[([0-9]+)\]")
 _BYTE_SEPARATORS = re.compile(rb"[\s,;]+")
 # What the reader accepts as a column name (see _is_name_row).
 _WRITABLE_NAME = re.compile(r"[A-Za-z_][^\s,;#\"]*")
 
-# Bytes that separate numbers for numbers_by_line: the C locale's isspace().
-_WHITESPACE = np.zeros(256, bool)
-_WHITESPACE[[ord(c) for c in " \t\n\r\v\f"]] = True
 
 
 @dataclass
@@ -136,7 +134,7 @@ def read_text(path: Path, columns: str | Sequence[str] | None = None) -> PointCl
     if guessed and names[3:] == ["red", "green", "blue"] and _are_normals(parsed[3:]):
         names[3:] = ["nx", "ny", "nz"]
     raw = dict(zip(names, parsed, strict=True))
-    named = _group_components(_with_color_dtype(raw, preamble, names))
+    named = group_components(_with_color_dtype(raw, preamble, names))
     points, fields = columns_to_cloud_parts(named, path)
     if points is None:
         raise FormatError(
@@ -312,23 +310,13 @@ def _parse_rows(data: bytes, preamble: _Preamble, width: int, path: Path) -> lis
     """The rows' ``width`` columns, each ``(N,)`` float64.
 
     pyarrow's CSV reader is the fast path; it needs exactly one delimiter between values.
-    Anything else (runs of spaces, trailing spaces, tabs mixed with spaces, ``1, 2, 3``) goes to
+    Anything else (runs of spaces, tabs mixed with spaces, ``1, 2, 3``) goes to
     :func:`numbers_by_line`, which also names the line of any error.
     """
-    body = pa.py_buffer(data).slice(preamble.data_start)
+    body = memoryview(data)[preamble.data_start :]
     try:
-        table = pa_csv.read_csv(
-            body,
-            read_options=pa_csv.ReadOptions(column_names=[f"c{i}" for i in range(width)]),
-            parse_options=pa_csv.ParseOptions(delimiter=preamble.delimiter, quote_char=False),
-            convert_options=pa_csv.ConvertOptions(
-                column_types={f"c{i}": pa.float64() for i in range(width)},
-                null_values=[],
-                strings_can_be_null=False,
-            ),
-        )
-        return [column.to_numpy() for column in table.columns]
-    except (pa.ArrowException, ValueError):
+        return read_table(body, [np.dtype(np.float64)] * width, preamble.delimiter)
+    except TableError:
         pass
     text = data[preamble.data_start :]
     if preamble.delimiter != " ":
@@ -345,68 +333,6 @@ def _parse_rows(data: bytes, preamble: _Preamble, width: int, path: Path) -> lis
 
 
 _DELIMITERS_TO_SPACES = bytes.maketrans(b",;", b"  ")
-
-
-def numbers_by_line(
-    text: bytes, path: Path, first_line: int = 1
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Every whitespace-separated number in ``text``, and which line each comes from.
-
-    Returns ``(values, counts, line_numbers, line_starts)``: ``values`` (T,) float64 in reading
-    order; then for each non-blank line, in order, ``counts`` (L,) how many numbers it holds,
-    ``line_numbers`` (L,) its line number (``first_line`` for the first line of ``text``) and
-    ``line_starts`` (L,) the byte offset of its first number. Vectorised: no Python loop over
-    lines, so a 100k-line mesh parses in milliseconds. Raises FormatError naming the line of
-    the first value that is not a number.
-    """
-    raw = np.frombuffer(text, np.uint8)
-    is_space = _WHITESPACE[raw]
-    token_starts = np.flatnonzero(~is_space & np.concatenate(([True], is_space[:-1])))
-    newlines = np.flatnonzero(raw == ord("\n"))
-    token_lines = np.searchsorted(newlines, token_starts)
-    first_of_line = np.flatnonzero(np.diff(token_lines, prepend=-1))
-    counts = np.diff(np.append(first_of_line, len(token_starts)))
-    try:
-        values = np.fromstring(text, sep=" ")
-    except ValueError:
-        values = None
-    if values is None or len(values) != len(token_starts):
-        line_number, token = _first_bad_token(text, token_starts, token_lines, first_line)
-        raise FormatError(path, f"line {line_number}: {token!r} is not a number")
-    return (
-        values,
-        counts,
-        token_lines[first_of_line] + first_line,
-        token_starts[first_of_line],
-    )
-
-
-def _first_bad_token(
-    text: bytes, token_starts: np.ndarray, token_lines: np.ndarray, first_line: int
-) -> tuple[int, bytes]:
-    """The line number and text of the first token that numpy does not read as one number.
-
-    Chunks of tokens are parsed whole and only the first failing chunk token by token, so even
-    the error path of a large file stays fast.
-    """
-    chunk = 4096
-    for a in range(0, len(token_starts), chunk):
-        b = min(a + chunk, len(token_starts))
-        stop = token_starts[b] if b < len(token_starts) else len(text)
-        piece = text[token_starts[a] : stop]
-        if _parses_as(piece, b - a):
-            continue
-        for i, token in enumerate(piece.split(), a):
-            if not _parses_as(token, 1):
-                return int(token_lines[i]) + first_line, token[:40]
-    return first_line, text[:40]
-
-
-def _parses_as(text: bytes, count: int) -> bool:
-    try:
-        return len(np.fromstring(text, sep=" ")) == count
-    except ValueError:
-        return False
 
 
 def _with_color_dtype(
@@ -431,26 +357,6 @@ def _with_color_dtype(
     return {name: v.astype(dtype) if name in colors else v for name, v in columns.items()}
 
 
-def _group_components(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """``name[0] ... name[K-1]``, in that order, become one ``(N, K)`` column ``name``."""
-    grouped: dict[str, np.ndarray] = {}
-    names = list(columns)
-    i = 0
-    while i < len(names):
-        match = _COMPONENT.fullmatch(names[i])
-        if match and match.group(2) == "0":
-            base, k = match.group(1), 1
-            while i + k < len(names) and names[i + k] == f"{base}[{k}]":
-                k += 1
-            if base not in columns and base not in grouped:
-                grouped[base] = np.stack([columns[n] for n in names[i : i + k]], axis=1)
-                i += k
-                continue
-        grouped[names[i]] = columns[names[i]]
-        i += 1
-    return grouped
-
-
 # ----------------------------------------------------------------------------------------------
 # Writing
 
@@ -465,7 +371,7 @@ def write_text(path: Path, cloud: PointCloud, encoding: str | None = None) -> No
     header = delimiter.join(columns) if delimiter == "," else "# " + " ".join(columns)
     with open(path, "wb") as file:
         file.write((header + "\n").encode("utf-8"))
-        write_number_rows(file, list(columns.values()), delimiter)
+        write_rows(file, list(columns.values()), delimiter, floats_as=np.float64)
 
 
 def _columns_to_write(cloud: PointCloud) -> dict[str, np.ndarray]:
@@ -530,32 +436,7 @@ def _write_pts(path: Path, cloud: PointCloud) -> None:
         )
     with open(path, "wb") as file:
         file.write(f"{len(cloud)}\n".encode())
-        write_number_rows(file, columns, " ")
-
-
-def write_number_rows(file: BinaryIO, columns: Sequence[np.ndarray], delimiter: str) -> None:
-    """Write ``(N,)`` columns as N lines of numbers, by pyarrow's CSV writer.
-
-    Floats are cast to float64 and printed in their shortest round-trip form, so reading the
-    text back as float64 gives exactly ``float64(value)`` (NaN and infinities included, as
-    ``nan``, ``inf``, ``-inf``); integers print as integers and booleans as 0 / 1.
-    """
-    if not columns:
-        return
-    arrays = {}
-    for i, values in enumerate(columns):
-        if values.dtype.kind == "f":
-            values = values.astype(np.float64, copy=False)
-        elif values.dtype.kind == "b":
-            values = values.astype(np.uint8)
-        else:
-            values = values.astype(values.dtype.newbyteorder("="), copy=False)
-        arrays[f"c{i}"] = pa.array(np.ascontiguousarray(values))
-    pa_csv.write_csv(
-        pa.table(arrays),
-        file,
-        pa_csv.WriteOptions(include_header=False, delimiter=delimiter, quoting_style="none"),
-    )
+        write_rows(file, columns, floats_as=np.float64)
 
 
 register(

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from pointfield.clouds.cloud import PointCloud
+from pointfield.clouds.formats.binary import map_file, read_records
 from pointfield.clouds.formats.registry import Format, register
 from pointfield.errors import FormatError
 
@@ -67,7 +68,8 @@ def read_velodyne(path: Path, columns: int = DEFAULT_COLUMNS) -> PointCloud:
         )
     # A read-only map of the file: each output array is copied out of it once, so memory holds
     # the output and nothing more.
-    records = np.memmap(path, RECORD_DTYPE, mode="r", shape=(size // record, columns))
+    with open(path, "rb") as file:
+        records = read_records(map_file(file), np.dtype((RECORD_DTYPE, columns)), size // record)
     points = records[:, :3].astype(np.float32)
     fields = {}
     if columns == 4 or columns == 5:
