@@ -1,4 +1,4 @@
-"""Two CPU processes training one classifier with DDP hold the same weights after every step.
+"""Two CPU processes training one classifier with DDP hold the same weights after their steps.
 
 torchrun starts two processes (gloo backend) that each call ``pointfield.clouds.tasks.train``.
 Each records, through torch's global hooks and nothing of pointfield's, the first batch its
