@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from pointfield.fields.train import train
-from pointfield.image_metrics import psnr
+from pointfield.metrics import psnr
 from pointfield.scenes import synthetic_scene
 
 CUBE = dict(cube_views=12, cube_size=16)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from pointfield.image_metrics import psnr
+from pointfield.metrics import psnr
 from pointfield.scenes import synthetic_scene
 from pointfield.splats.train import train
 
