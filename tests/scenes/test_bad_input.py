@@ -346,7 +346,7 @@ def test_llff_wrong_shape_and_hostile_header_are_errors(tmp_path):
     (folder / "poses_bounds.npy").write_bytes(
         b"\x93NUMPY\x01\x00" + struct.pack("<H", 118) + header.ljust(117) + b"\n" + data[128:]
     )
-    with pytest.raises(FormatError, match=r"header declares \(99999999999, 17\)"):
+    with pytest.raises(FormatError, match=r"shape \(99999999999, 17\)\) declares .* bytes but only 272 follow"):
         read_scene(folder)
 
 
@@ -405,7 +405,7 @@ def test_npz_member_claiming_more_than_its_bytes_is_refused(tmp_path):
             member = io.BytesIO()
             np.save(member, array)
             archive.writestr(f"{name}.npy", member.getvalue())
-    with pytest.raises(FormatError, match=r"images\.npy: header declares \(9, 6, 8, 3\)"):
+    with pytest.raises(FormatError, match=r"images\.npy: the header \(a float32 array of shape \(9, 6, 8, 3\)\) declares .* but only 1152 follow"):
         read_scene(tmp_path / "bad.npz")
 
 

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from pointfield.clouds.cloud import PointCloud
+from pointfield.clouds.formats.npy import read_array
 from pointfield.errors import FormatError, PointfieldError
 from pointfield.scenes.cameras import Cameras
 
@@ -236,8 +237,6 @@ class Scene:
             raise SceneError(f"frame {index} ({self.frames[index].name}) has no {what}")
         where = f"frame {index} ({self.frames[index].name})"
         if path.suffix.lower() == ".npy":
-            from pointfield.scenes.formats.validation import load_npy
-
             return load_npy(path, f"{where}: {what}")
         return read_image_file(path, where)
 
@@ -331,3 +330,17 @@ def _block_mean_of_valid(values: np.ndarray, valid: np.ndarray, factor: int) -> 
     total = _block_mean(np.where(valid, values, 0).astype(np.float32), factor)
     count = _block_mean(valid.astype(np.float32), factor)
     return np.divide(total, count, out=np.zeros_like(total), where=count > 0)
+
+
+def load_npy(path: Path, where: str = "array") -> np.ndarray:
+    """A numeric ``.npy`` array (depth maps, LLFF poses), read by the cloud reader's size-checked path.
+
+    The declared shape is checked against the bytes present before anything is allocated
+    (:func:`pointfield.clouds.formats.npy.read_array`); arrays of anything but numbers are refused.
+    """
+    if not path.is_file():
+        raise FormatError(path, "file not found")
+    array = read_array(path)
+    if array.dtype.kind not in "biuf":
+        raise FormatError(path, f"{where}: array has dtype {array.dtype}; expected numbers")
+    return np.array(array)  # a copy: the array may view a memory map of the file

@@ -149,8 +149,12 @@ def read_array_header(stream: IO[bytes], path: Path, member: str | None = None) 
     return ArrayHeader(dtype, shape, fortran_order, start + length)
 
 
-def read_npy(path: Path) -> PointCloud | Records:
-    """Read a ``.npy`` array as a cloud (see the module docstring for the layouts)."""
+def read_array(path: Path) -> np.ndarray:
+    """A ``.npy`` file's array, its declared size checked against the bytes present first.
+
+    The array may view a memory map of the file (large files): copy what must outlive it.
+    Also what scene readers use for ``.npy`` files (LLFF poses, depth maps).
+    """
     size = path.stat().st_size
     with open(path, "rb") as file:
         header = read_array_header(file, path)
@@ -159,9 +163,14 @@ def read_npy(path: Path) -> PointCloud | Records:
             path, header.declared, header.count, header.dtype.itemsize, available, unit="values"
         )
         values = read_records(map_file(file), header.dtype, header.count, header.size)
-    array = values.reshape(header.shape, order="F" if header.fortran_order else "C")
+    return values.reshape(header.shape, order="F" if header.fortran_order else "C")
+
+
+def read_npy(path: Path) -> PointCloud | Records:
+    """Read a ``.npy`` array as a cloud (see the module docstring for the layouts)."""
+    array = read_array(path)
     cloud = cloud_from_array(array, path, "the array")
-    del array, values  # unmaps the file: every output array was copied out of it
+    del array  # unmaps the file: every output array was copied out of it
     cloud.metadata["encoding"] = "binary"
     return cloud
 

@@ -31,10 +31,9 @@ from pointfield.scenes.formats.validation import (
     MissingImage,
     image_size,
     keep_frames,
-    load_npy,
     rigid_rotation,
 )
-from pointfield.scenes.scene import Frame, Scene
+from pointfield.scenes.scene import Frame, Scene, load_npy
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 

@@ -19,10 +19,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from pointfield.clouds.formats.binary import check_size
+from pointfield.clouds.formats.npy import read_array_header
 from pointfield.errors import FormatError
 from pointfield.scenes.cameras import Cameras, opengl_to_opencv
 from pointfield.scenes.formats.registry import SceneFormat, register
-from pointfield.scenes.formats.validation import npy_header, rigid_rotation
+from pointfield.scenes.formats.validation import rigid_rotation
 from pointfield.scenes.scene import Frame, Scene
 
 DEFLATE_MAX_RATIO = 1032
@@ -100,18 +102,13 @@ def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, path: Path) ->
             "more than deflate can produce",
         )
     data = archive.read(info)
-    stream = io.BytesIO(data)
-    try:
-        shape, dtype = npy_header(stream, path)
-    except FormatError as error:
-        raise FormatError(path, f"{where}: {error.reason}") from None
-    count = 1
-    for side in shape:
-        count *= side
-    available = len(data) - stream.tell()
-    if count * dtype.itemsize > available:
-        raise FormatError(path, f"{where}: header declares {shape} {dtype} but only {available} bytes follow")
-    return np.frombuffer(data, dtype=dtype, count=count, offset=stream.tell()).reshape(shape)
+    header = read_array_header(io.BytesIO(data), path, member=info.filename)
+    if header.dtype.kind not in "biuf":
+        raise FormatError(path, f"{where}: array has dtype {header.dtype}; expected numbers")
+    check_size(path, f"{where}: {header.declared}", header.count, header.dtype.itemsize, len(data) - header.size,
+               unit="values")
+    values = np.frombuffer(data, dtype=header.dtype, count=header.count, offset=header.size)
+    return values.reshape(header.shape, order="F" if header.fortran_order else "C")
 
 
 register(

@@ -119,45 +119,6 @@ def image_size(path: Path, where: str) -> tuple[int, int] | None:
         raise FormatError(path, f"{where}: not a readable image ({type(error).__name__}: {error})") from None
 
 
-def load_npy(path: Path, where: str = "array") -> np.ndarray:
-    """A .npy file, its declared shape checked against the bytes present before anything is allocated."""
-    try:
-        with open(path, "rb") as file:
-            shape, dtype = npy_header(file, path)
-            count = math.prod(shape)
-            declared = count * dtype.itemsize
-            available = path.stat().st_size - file.tell()
-            if declared > available:
-                raise FormatError(
-                    path,
-                    f"{where}: header declares {shape} {dtype} ({declared} bytes) but {available} bytes follow",
-                )
-            array = np.fromfile(file, dtype=dtype, count=count)
-            return array.reshape(shape)
-    except FileNotFoundError:
-        raise FormatError(path, "file not found") from None
-    except OSError as error:
-        raise FormatError(path, f"cannot read: {error}") from None
-
-
-def npy_header(file, path: Path) -> tuple[tuple[int, ...], np.dtype]:
-    try:
-        version = np.lib.format.read_magic(file)
-        if version == (1, 0):
-            shape, fortran, dtype = np.lib.format.read_array_header_1_0(file)
-        else:
-            shape, fortran, dtype = np.lib.format.read_array_header_2_0(file)
-    except Exception as error:  # numpy parses the header with ast/tokenize, which raise many types
-        raise FormatError(path, f"not a valid .npy file ({type(error).__name__}: {error})") from None
-    if fortran and len(shape) > 1:
-        raise FormatError(path, "Fortran-ordered arrays are not supported")
-    if dtype.hasobject or dtype.kind not in "biuf":
-        raise FormatError(path, f"array has dtype {dtype}; expected numbers")
-    if any(side < 0 for side in shape):
-        raise FormatError(path, f"array header has a negative dimension {shape}")
-    return tuple(int(side) for side in shape), dtype
-
-
 @dataclass(frozen=True)
 class MissingImage:
     """A frame whose image file does not exist: which file lists it, as which frame, and where it was sought."""
