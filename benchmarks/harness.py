@@ -188,7 +188,8 @@ class Record:
             # CompiledOrEager keeps its compiled callable once torch.compile has produced it and
             # sets ``failed`` when a call of it raised; between them they say what really ran.
             ran_compiled = getattr(kernel, "_compiled", None) is not None and not kernel.failed
-            self.compiled[kernel.what] = ran_compiled
+            # Kernels may share a name ("the splat binning" is two): the name holds if all of them ran compiled.
+            self.compiled[kernel.what] = self.compiled.get(kernel.what, True) and ran_compiled
             if not ran_compiled:
                 reason = "fell back to eager" if kernel.failed else "was never compiled"
                 print(f"COMPILED PATH NOT COMPILED: {kernel.what} {reason}; its figures are eager ones",
