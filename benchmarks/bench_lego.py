@@ -36,7 +36,7 @@ from pathlib import Path
 
 import torch
 
-from harness import Record, interleaved, time_to, training_curve
+from harness import Record, device_name, interleaved, time_to, training_curve
 
 LEGO = Path(__file__).resolve().parents[2] / "shared" / "data" / "nerf" / "lego_blender"
 THRESHOLDS = (20.0, 25.0, 28.0, 31.0)
@@ -185,8 +185,10 @@ def main() -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     args.out.mkdir(parents=True, exist_ok=True)
+    from pointfield.devices import pick_device
+
     record = Record(
-        "lego", "Radiance fields and splats on lego", issue="5, 6, 7",
+        "lego", "Radiance fields and splats on lego", issue="5, 6, 7", device=device_name(pick_device(None)),
         about="NeRF-synthetic lego at 100 x 100 (`--downscale 8 --holdout-every 10`, white background; 90 views "
               "trained on, 10 held out), each model trained by the function behind its command and scored on all "
               "10 held-out views every `--*-eval-every` steps; held-out PSNR is the mean of per-view PSNR. Times "

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import torch
 
-from harness import Record, interleaved, time_to, training_curve
+from harness import Record, device_name, interleaved, time_to, training_curve
 
 LEGO = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "nerf" / "lego_blender"
 THRESHOLDS = (25.0, 28.0)
@@ -68,12 +68,13 @@ def main() -> int:
         torch.set_num_threads(args.threads)
 
     from pointfield.compiling import compiler_available
+    from pointfield.devices import pick_device
     from pointfield.splats.rasterizer import _FUSED_BANDS, _FUSED_PROJECT, _FUSED_TILE_SPANS
     from pointfield.splats.train import train
     from pointfield.training import RunDirectory
 
     record = Record(
-        "splat", "Gaussian splats on lego", issue="7",
+        "splat", "Gaussian splats on lego", issue="7", device=device_name(pick_device(None)),
         about="NeRF-synthetic lego at 100 x 100 (`--downscale 8 --holdout-every 10`), trained by "
               "`pointfield.splats.train.train` and scored on all ten held-out views every `--eval-every` steps; "
               "times to a PSNR are training seconds, evaluations excluded. The render is the trained model's "
