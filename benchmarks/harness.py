@@ -35,6 +35,7 @@ from typing import Any
 
 import torch
 
+from pointfield.atomic import atomic_path
 from pointfield.compiling import CompiledOrEager
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -207,9 +208,8 @@ class Record:
         self.environment.update(environment_after())
         output.mkdir(parents=True, exist_ok=True)
         path = output / f"{self.name}.json"
-        temporary = path.with_suffix(".json.tmp")
-        temporary.write_text(json.dumps(self.as_dict(), indent=2, default=_plain) + "\n")
-        temporary.replace(path)
+        with atomic_path(path) as temporary:
+            temporary.write_text(json.dumps(self.as_dict(), indent=2, default=_plain) + "\n")
         load = self.environment
         print(f"\nwrote {path} (commit {load['commit'][:10]}{' + uncommitted changes' if load['dirty'] else ''}, "
               f"load {load['load_before'][0]:.2f} -> {load['load_after'][0]:.2f})", flush=True)
