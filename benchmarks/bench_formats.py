@@ -25,6 +25,7 @@ import numpy as np
 import open3d as o3d
 
 import pointfield
+
 from harness import Record, interleaved
 
 TARGETS = {  # file -> (peer, the most pointfield may take relative to the peer)
