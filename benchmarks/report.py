@@ -70,10 +70,10 @@ def conditions(environment: dict[str, Any]) -> str:
     if environment.get("dirty"):
         changes = ", ".join(f"`{name}`" for name in changed) or "files git did not list"
         code += f" with uncommitted changes to {changes}"
-    before, after = environment["load_before"], environment["load_after"]
+    before, after, threads = environment["load_before"], environment["load_after"], environment["torch_threads"]
     return (f"Measured {environment['date']} at {code}; {environment['device']}, "
             f"{environment['cpu_count']} CPUs ({environment.get('cpu', 'unknown')}), torch {environment['torch']} "
-            f"on {environment['torch_threads']} threads; load average {before[0]:.2f} before, {after[0]:.2f} after.")
+            f"on {threads} thread{'' if threads == 1 else 's'}; load average {before[0]:.2f} before, {after[0]:.2f} after.")
 
 
 def markdown_table(table: dict[str, Any]) -> str:
