@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench bench-formats bench-fuzz bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego clean
+.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,7 +27,13 @@ $(BIN)/.open3d: $(BIN)/.installed
 	$(BIN)/python -c "import open3d"
 	touch $@
 
+# Each benchmark writes its record to bench-output/<name>.json; bench-report turns the records
+# into benchmarks/RESULTS.md, each section headed by the command that produced it.
 bench: bench-formats bench-fuzz bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat
+	$(MAKE) bench-report
+
+bench-report: $(BIN)/.installed
+	$(BIN)/python benchmarks/report.py
 
 bench-formats: $(BIN)/.open3d
 	$(BIN)/python benchmarks/bench_formats.py

@@ -8,16 +8,15 @@ output arrays in memory.
 The PLY and PCD files are written by open3d itself, so each reader reads the peer's own output.
 Times are the median of several interleaved runs with a warm page cache.
 
-Run: ``make bench-formats`` (or ``python benchmarks/bench_formats.py --points 2000000``).
+Run: ``make bench-formats`` (or ``python benchmarks/bench_formats.py --points 2000000``); the
+record goes to ``bench-output/formats.json``.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import statistics
+import sys
 import tempfile
-import time
 import tracemalloc
 from pathlib import Path
 
@@ -26,6 +25,8 @@ import numpy as np
 import open3d as o3d
 
 import pointfield
+
+from harness import Record, interleaved
 
 TARGETS = {  # file -> (peer, the most pointfield may take relative to the peer)
     "binary.ply": ("open3d", 0.25),
@@ -76,16 +77,6 @@ def read_pointfield(path: Path) -> int:
     return len(pointfield.read(path))
 
 
-def median_times(path: Path, readers: dict, repeats: int) -> dict[str, float]:
-    samples: dict[str, list[float]] = {name: [] for name in readers}
-    for _ in range(repeats):
-        for name, reader in readers.items():  # interleaved, so drift hits both alike
-            start = time.perf_counter()
-            reader(path)
-            samples[name].append(time.perf_counter() - start)
-    return {name: statistics.median(times) for name, times in samples.items()}
-
-
 def peak_memory_ratio(path: Path) -> float:
     """Peak traced allocation during the read, over the bytes of the arrays it returns."""
     tracemalloc.start()
@@ -96,39 +87,49 @@ def peak_memory_ratio(path: Path) -> float:
     return peak / output
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=2_000_000)
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--out", type=Path, default=Path("bench-output/formats.json"))
+    parser.add_argument("--repeats", type=int, default=5, help="interleaved reads per reader (median)")
     args = parser.parse_args()
 
-    results = []
+    record = Record(
+        "formats", "Point-cloud reading against open3d and laspy", issue="2",
+        about=f"{args.points:,} points with colours; the PLY and PCD files written by open3d {o3d.__version__}, "
+              f"LAS and LAZ by laspy {laspy.__version__}, so each reader reads the peer's own output. Reads of "
+              "pointfield and the peer alternate (median of the interleaved runs, warm page cache). The laspy "
+              "peer is `laspy.read(path)` plus the x, y, z arrays; pointfield also hands out every dimension as "
+              "its own contiguous field. `memory` is the peak allocation traced by tracemalloc during "
+              "`pointfield.read`, over the bytes of the arrays it returns.")
+    rows, results = [], []
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         print(f"writing {args.points:,} coloured points with open3d and laspy ...", flush=True)
         make_files(folder, args.points)
-        print(f"{'file':<16}{'MB':>8}{'peer':>8}{'peer s':>9}{'ours s':>9}{'ratio':>8}"
-              f"{'target':>8}{'memory':>8}  verdict")
         for name, (peer, target) in TARGETS.items():
             path = folder / name
             peer_reader = read_open3d if peer == "open3d" else read_laspy
             assert peer_reader(path) == read_pointfield(path) == args.points
-            times = median_times(path, {peer: peer_reader, "pointfield": read_pointfield}, args.repeats)
-            ratio = times["pointfield"] / times[peer]
+            timings = interleaved({peer: lambda: peer_reader(path), "pointfield": lambda: read_pointfield(path)},
+                                  args.repeats)
+            ratio = timings["pointfield"].median / timings[peer].median
             memory = peak_memory_ratio(path)
-            verdict = "ok" if ratio <= target else "SLOWER THAN TARGET"
             size_mb = path.stat().st_size / 1e6
-            print(f"{name:<16}{size_mb:>8.1f}{peer:>8}{times[peer]:>9.3f}{times['pointfield']:>9.3f}"
-                  f"{ratio:>8.2f}{target:>8.2f}{memory:>7.2f}x  {verdict}", flush=True)
-            results.append({"file": name, "megabytes": size_mb, "peer": peer,
-                            "peer_seconds": times[peer], "pointfield_seconds": times["pointfield"],
-                            "ratio": ratio, "target": target, "peak_memory_over_output": memory})
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"points": args.points, "results": results}, indent=2))
-    print(f"memory = peak traced allocation during pointfield.read / bytes of the arrays returned")
-    print(f"wrote {args.out}")
+            print(f"{name}: ratio {ratio:.2f}", flush=True)
+            rows.append([name, f"{size_mb:.1f}", peer, f"{timings[peer].median:.3f}",
+                         f"{timings['pointfield'].median:.3f}", f"{timings['pointfield'].spread:.0%}",
+                         f"{ratio:.2f}", f"{target:.2f}", f"{memory:.2f}x"])
+            results.append({"file": name, "megabytes": size_mb, "peer": peer, "ratio": ratio, "target": target,
+                            "peer_timing": timings[peer].as_dict(), "pointfield_timing": timings["pointfield"].as_dict(),
+                            "peak_memory_over_output": memory})
+    record.figures.update({"points": args.points, "results": results})
+    record.table(["file", "MB", "peer", "peer s", "ours s", "ours spread", "ratio", "target", "memory"], rows,
+                 title=f"median of {args.repeats} interleaved reads")
+    for result in results:
+        record.verdict(f"{result['file']} reads in at most {result['target']:.2f}x {result['peer']}'s time",
+                       result["ratio"] <= result["target"], f"{result['ratio']:.2f}x")
+    return record.finish()
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

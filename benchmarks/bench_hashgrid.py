@@ -31,6 +31,9 @@ of ``InstantNGP`` with ``max_resolution`` set from the image size (twice its sid
 ``--levels/--features/--log2-table/--max-resolution`` say -- and ``paper`` (Müller et al. 2022:
 16 levels, F = 2, 2^19 entries, N_max 2048); listed once when they are the same.
 
+Every implementation is timed against the others in the same run, interleaved (harness.py); the
+record goes to ``bench-output/hashgrid.json``.
+
 Run: ``make bench-hashgrid`` (= ``.venv/bin/python benchmarks/bench_hashgrid.py``), a few minutes
 on 2 cores; shorter: ``--points 16384 --repeats 2 --memory-steps 2 --render-chunks 1``, or
 ``--skip-memory`` / ``--skip-compiled``.
@@ -43,15 +46,14 @@ import inspect
 import json
 import os
 import resource
-import shutil
-import statistics
 import subprocess
 import sys
 import time
-import warnings
 from collections.abc import Callable
 
 import torch
+
+from harness import Record, device_name, interleaved
 
 PAPER = {"levels": 16, "features_per_level": 2, "log2_table_size": 19, "max_resolution": 2048}
 TRAINING_VIEWS = 90  # lego at --holdout-every 10
@@ -103,20 +105,13 @@ def synchronize(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def time_calls(run, repeats: int, device: torch.device) -> tuple[float, float]:
-    """``(first call seconds, median seconds of the next ``repeats`` calls)``."""
+def first_call_seconds(run, device: torch.device) -> float:
+    """Seconds of one call (the first: for ``compiled`` it includes compilation)."""
     synchronize(device)
     started = time.perf_counter()
     run()
     synchronize(device)
-    first = time.perf_counter() - started
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        run()
-        synchronize(device)
-        times.append(time.perf_counter() - started)
-    return first, statistics.median(times)
+    return time.perf_counter() - started
 
 
 def encoding_calls(encoding, encode, points, upstream):
@@ -155,22 +150,15 @@ def adam_step_seconds(config: dict[str, int], args: argparse.Namespace, device: 
     field = NGPField(**config, backend="eager").to(device)
     for parameter in field.parameters():
         parameter.grad = torch.randn_like(parameter)
-    seconds = {}
-    for name, options in (("default", {}), ("fused", {"fused": True})):
-        optimizer = torch.optim.Adam(field.parameters(), lr=1e-2, betas=(0.9, 0.99), eps=1e-15, **options)
-        seconds[name] = time_calls(optimizer.step, args.repeats, device)[1]
-    return seconds
-
-
-def compiler_available(device: torch.device) -> bool:
-    if device.type == "cuda":
-        import importlib.util
-
-        return importlib.util.find_spec("triton") is not None
-    return any(shutil.which(name) for name in ("c++", "g++", "clang++"))
+    steps = {name: torch.optim.Adam(field.parameters(), lr=1e-2, betas=(0.9, 0.99), eps=1e-15, **options).step
+             for name, options in (("default", {}), ("fused", {"fused": True}))}
+    timings = interleaved(steps, args.repeats, synchronize=lambda: synchronize(device))
+    return {name: timing.median for name, timing in timings.items()}
 
 
 def throughput(config: dict[str, int], args: argparse.Namespace, device: torch.device) -> list[dict]:
+    """One row per implementation: first call, then medians of interleaved forward + backward and forward calls."""
+    from pointfield.compiling import compiler_available
     from pointfield.fields.encodings.hashgrid import HashEncoding, reference_hash_encoding
     from pointfield.fields.nerf import RadianceMLP
     from pointfield.fields.ngp import NGPField
@@ -179,43 +167,38 @@ def throughput(config: dict[str, int], args: argparse.Namespace, device: torch.d
     points = torch.rand(args.points, 3, generator=generator).to(device)
     directions = torch.nn.functional.normalize(torch.randn(args.points, 3, generator=generator), dim=-1).to(device)
     upstream = torch.randn(args.points, config["levels"] * config["features_per_level"], generator=generator).to(device)
-    rows = []
     backends = ["eager"] if args.skip_compiled or not compiler_available(device) else ["compiled", "eager"]
-
-    def measure(name, calls):
-        forward, forward_backward = calls
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            first, median = time_calls(forward_backward, args.repeats, device)
-            _, forward_median = time_calls(forward, args.repeats, device)
-        fell_back = any("torch.compile of the hash encoding failed" in str(w.message) for w in caught)
-        rows.append({"implementation": name + (" (fell back to eager)" if fell_back else ""), "first_s": first,
-                     "median_s": median, "forward_s": forward_median, "samples_per_s": args.points / median})
-        print(f"  {rows[-1]['implementation']:<28} first {first:7.2f} s   median {median:8.4f} s   "
-              f"forward only {forward_median:8.4f} s", flush=True)
-
+    contenders = {}  # name -> (forward, forward + backward)
     for backend in backends:
         encoding = HashEncoding(**config, backend=backend).to(device)
-        measure(f"hash encoding, {backend}", encoding_calls(encoding, lambda e, x: e(x), points, upstream))
+        contenders[f"hash encoding, {backend}"] = encoding_calls(encoding, lambda e, x: e(x), points, upstream)
     encoding = HashEncoding(**config, backend="eager").to(device)
-    measure("hash encoding, reference", encoding_calls(encoding, reference_hash_encoding, points, upstream))
-    measure("TinyNeRF MLP field", field_calls(RadianceMLP(depth=4, width=128, skips=(), color_width=64).to(device),
-                                              points, directions))
+    contenders["hash encoding, reference"] = encoding_calls(encoding, reference_hash_encoding, points, upstream)
+    contenders["TinyNeRF MLP field"] = field_calls(
+        RadianceMLP(depth=4, width=128, skips=(), color_width=64).to(device), points, directions)
     for backend in backends:
-        measure(f"NGPField, {backend}", field_calls(NGPField(**config, backend=backend).to(device), points, directions))
-    return rows
+        contenders[f"NGPField, {backend}"] = field_calls(NGPField(**config, backend=backend).to(device), points, directions)
+
+    first = {name: first_call_seconds(calls[1], device) for name, calls in contenders.items()}
+    wait = lambda: synchronize(device)  # noqa: E731
+    both = interleaved({name: calls[1] for name, calls in contenders.items()}, args.repeats, warmup=0, synchronize=wait)
+    forward = interleaved({name: calls[0] for name, calls in contenders.items()}, args.repeats, synchronize=wait)
+    return [{"implementation": name, "first_s": first[name], "median_s": both[name].median, "spread": both[name].spread,
+             "forward_s": forward[name].median, "samples_per_s": args.points / both[name].median}
+            for name in contenders]
 
 
-def print_throughput(name: str, config: dict[str, int], rows: list[dict], points: int) -> None:
-    reference = next(r for r in rows if r["implementation"].startswith("hash encoding, reference"))
+def throughput_table(record: Record, name: str, config: dict[str, int], rows: list[dict], points: int) -> None:
+    reference = next(r for r in rows if r["implementation"] == "hash encoding, reference")
     mlp = next(r for r in rows if r["implementation"] == "TinyNeRF MLP field")
-    print(f"\nthroughput, {name} ({describe(config)}), {points} samples; forward + backward unless said:")
-    print(f"{'implementation':<30} {'first s':>8} {'median s':>9} {'samples/s':>10} {'x reference':>12} "
-          f"{'x TinyNeRF MLP':>15} {'forward s':>10}")
-    for row in rows:
-        print(f"{row['implementation']:<30} {row['first_s']:8.2f} {row['median_s']:9.4f} {row['samples_per_s']:10.3g} "
-              f"{row['samples_per_s'] / reference['samples_per_s']:12.2f} "
-              f"{row['samples_per_s'] / mlp['samples_per_s']:15.2f} {row['forward_s']:10.4f}")
+    record.table(
+        ["implementation", "first s", "median s", "spread", "samples/s", "x reference", "x TinyNeRF MLP", "forward s"],
+        [[row["implementation"], f"{row['first_s']:.2f}", f"{row['median_s']:.4f}", f"{row['spread']:.0%}",
+          f"{row['samples_per_s']:.3g}", f"{row['samples_per_s'] / reference['samples_per_s']:.2f}",
+          f"{row['samples_per_s'] / mlp['samples_per_s']:.2f}", f"{row['forward_s']:.4f}"] for row in rows],
+        title=f"throughput, {name} ({describe(config)}), {points:,} samples, forward + backward unless said; "
+              f"median of {len(rows)} implementations interleaved",
+    )
 
 
 # -- (b) memory -----------------------------------------------------------------------------------------
@@ -264,8 +247,10 @@ def memory_child(request: dict) -> dict:
     import numpy as np
 
     from pointfield.devices import pick_device
+    from pointfield.fields.field import RayBudget, render_in_chunks
     from pointfield.fields.ngp import InstantNGP
-    from pointfield.fields.train import RENDER_CHUNK, render_view, scene_rays
+    from pointfield.fields.run import RENDER_CHUNK
+    from pointfield.fields.train import scene_rays
     from pointfield.scenes import Frame, Scene
     from pointfield.scenes.synthetic import synthetic_cameras
 
@@ -288,7 +273,8 @@ def memory_child(request: dict) -> dict:
     cameras = synthetic_cameras(views + 1, size)
     scene = Scene(cameras, [Frame(f"r_{i}", image=blank) for i in range(views + 1)],
                   near_far=np.tile([2.0, 6.0], (views + 1, 1)))
-    rays = scene_rays(scene, range(views), device)
+    rays, colors = scene_rays(scene, range(views), device)
+    budget = RayBudget(model.target_samples)
     mark(f"rays of {views} views")
     background = torch.ones(3, device=device)
     samples = []
@@ -296,24 +282,25 @@ def memory_child(request: dict) -> dict:
     for step in range(request["steps"]):  # as pointfield.fields.train.train's step()
         generator = torch.Generator().manual_seed(step)
         model.before_step(step, generator)
-        indices = torch.randint(len(rays), (model.rays_for_next_step(),), generator=generator).to(device)
-        rendered = model(rays.origins[indices], rays.directions[indices], rays.near[indices], rays.far[indices],
-                         background, jitter=True, generator=generator)[-1]
-        loss = torch.mean((rendered.color - rays.colors[indices]) ** 2)
+        indices = torch.randint(len(rays), (budget.rays(),), generator=generator).to(device)
+        output = model(rays[indices], background, jitter=True, generator=generator)
+        budget.update(len(indices), output.samples)
+        loss = torch.mean((output.final.color - colors[indices]) ** 2)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
-        samples.append(model.last_samples)
+        samples.append(len(output.final.samples))
     training_seconds = time.perf_counter() - started
     mark(f"{request['steps']} training steps")
-    view = scene_rays(scene, [views], device)
+    view, _ = scene_rays(scene, [views], device)
     pixels = size * size
     chunk_rows = size if request["render_chunks"] is None else max(1, request["render_chunks"] * RENDER_CHUNK // size)
     first_row = max(0, size // 2 - chunk_rows // 2)
     selected = slice(first_row * size, min(pixels, (first_row + chunk_rows) * size))
-    part = type(view)(*(getattr(view, name)[selected] for name in ("origins", "directions", "colors", "near", "far")))
+    part = view[selected]
     started = time.perf_counter()
-    render_view(model, part, len(part) // size, size, background)
+    model.eval()
+    render_in_chunks(model, part, background, chunk=RENDER_CHUNK)
     render_seconds = time.perf_counter() - started
     mark(f"render {len(part)} of {pixels} pixels")
     return {"phases_mb": phases, "samples_per_step": samples, "training_seconds": training_seconds,
@@ -331,24 +318,25 @@ def memory(config: dict[str, int], size: int, args: argparse.Namespace) -> dict:
     return json.loads(completed.stdout.strip().splitlines()[-1])
 
 
-def print_memory(name: str, config: dict[str, int], counts: dict[str, int], size: int, result: dict,
-                 backend: str) -> None:
-    print(f"\nmemory, {name} ({describe(config)}), backend {backend}:")
-    print(f"  parameters: bounded {counts['bounded']:,} (hash table {counts['hash table']:,}), "
-          f"unbounded {counts['unbounded']:,} (+ proposal networks {counts['proposal networks']:,}); "
-          f"float32 parameters + gradients + Adam's two moments: {counts['bounded'] * 16 / 2**20:.0f} MB (bounded)")
+def memory_table(record: Record, name: str, config: dict[str, int], counts: dict[str, int], size: int,
+                 result: dict, backend: str) -> float:
+    """Tabulate one memory measurement; returns its peak resident memory in GB."""
     phases = result["phases_mb"]
-    peak = max(value[0] for key, value in phases.items() if "cuda" not in key)
+    peak = max(value[0] for key, value in phases.items() if "cuda" not in key) / 1024
     steps = ", ".join(f"{count:,}" for count in result["samples_per_step"])
-    print(f"  peak {peak / 1024:.2f} GB = {100 * peak / 1024 / TARGET_GB:.0f} % of {TARGET_GB:.0f} GB; "
-          f"samples per training step {steps} ({result['training_seconds']:.1f} s); "
-          f"rendered {result['rendered_pixels']:,} of {size * size:,} pixels in {result['render_seconds']:.1f} s")
-    print(f"      {'after':<44} {'peak MB':>9} {'now MB':>9}")
-    for phase, (highest, now) in phases.items():
-        print(f"      {phase:<44} {highest:9.0f} {now if now is not None else float('nan'):9.0f}")
+    record.table(
+        ["after", "peak MB", "now MB"],
+        [[phase, f"{highest:.0f}", "-" if now is None else f"{now:.0f}"] for phase, (highest, now) in phases.items()],
+        title=f"memory, {name} ({describe(config)}), backend {backend}: parameters bounded {counts['bounded']:,} "
+              f"(hash table {counts['hash table']:,}), unbounded {counts['unbounded']:,}; peak {peak:.2f} GB = "
+              f"{100 * peak / TARGET_GB:.0f} % of {TARGET_GB:.0f} GB; samples per training step {steps} "
+              f"({result['training_seconds']:.1f} s); rendered {result['rendered_pixels']:,} of {size * size:,} "
+              f"pixels in {result['render_seconds']:.1f} s",
+    )
+    return peak
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--levels", type=int, help="lego configuration: levels (default: InstantNGP's)")
     parser.add_argument("--features", type=int, help="lego configuration: features per level")
@@ -370,29 +358,51 @@ def main() -> None:
     args = parser.parse_args()
     if args.memory_child:
         print(json.dumps(memory_child(json.loads(args.memory_child))))
-        return
+        return 0
 
     from pointfield.devices import pick_device
+    from pointfield.fields.encodings.hashgrid import _FUSED_HASH_ENCODE
 
     device = pick_device(args.device)
-    print(f"device {device}, {torch.get_num_threads()} threads, torch {torch.__version__}", flush=True)
+    record = Record(
+        "hashgrid", "Hash encoding throughput and Instant-NGP memory", issue="6", device=device_name(device),
+        about="(a) Forward + backward of the multiresolution hash encoding in samples per second: compiled "
+              "(`torch.compile`), eager (hand-written backward) and the reference implementation, beside "
+              "TinyNeRF's dense MLP field and the whole `NGPField`, interleaved; \"first s\" is the first call "
+              "(compilation for compiled, cached on disk). One Adam step over the field's parameters, default "
+              "and fused, interleaved. (b) Peak resident memory of a fresh process holding all 90 training views' "
+              "rays, taking a few training steps and rendering a held-out view (at 800 x 800, the first chunks "
+              "through its middle); untrained model, the worst case. `lego` is what `pointfield nerf train lego "
+              "--model ngp` builds, `paper` is Müller et al. 2022 (16 levels, F = 2, 2^19 entries, N_max 2048).")
+    figures, timed_compiled = record.figures, False
     for name, config_for in configurations(args).items():
         if not args.skip_throughput:
             config = config_for(THROUGHPUT_SIZE)
             print(f"\n{name}: timing ({describe(config)})", flush=True)
             rows = throughput(config, args, device)
-            print_throughput(f"{name} at {THROUGHPUT_SIZE}x{THROUGHPUT_SIZE}", config, rows, args.points)
+            timed_compiled |= any(row["implementation"].endswith(", compiled") for row in rows)
+            throughput_table(record, f"{name} at {THROUGHPUT_SIZE}x{THROUGHPUT_SIZE}", config, rows, args.points)
             adam = adam_step_seconds(config, args, device)
-            print(f"one Adam step over the field's parameters (the whole table, every step): "
-                  f"{adam['default']:.4f} s; with fused=True {adam['fused']:.4f} s")
+            record.note(f"{name}: one Adam step over the field's parameters (the whole table, every step), "
+                        f"median of {args.repeats} interleaved: {adam['default'] * 1e3:.1f} ms; with fused=True "
+                        f"{adam['fused'] * 1e3:.1f} ms.")
+            figures.setdefault(name, {}).update({"config": config, "throughput": rows, "adam_seconds": adam})
         if not args.skip_memory:
             for size in args.sizes:
                 config = config_for(size)
                 print(f"\n{name}: memory at {size}x{size} (subprocess; {describe(config)})", flush=True)
                 result = memory(config, size, args)
-                print_memory(f"{name} at {size}x{size}", config, parameter_counts(config), size, result,
-                             args.memory_backend)
+                counts = parameter_counts(config)
+                peak = memory_table(record, f"{name} at {size}x{size}", config, counts, size, result,
+                                    args.memory_backend)
+                figures.setdefault(name, {}).setdefault("memory", {})[f"{size}x{size}"] = {
+                    "config": config, "parameters": counts, "peak_gb": peak, **result}
+                record.verdict(f"{name} at {size}x{size} trains within {TARGET_GB:.0f} GB", peak <= TARGET_GB,
+                               f"peak {peak:.2f} GB")
+    if timed_compiled:
+        record.require_compiled(_FUSED_HASH_ENCODE)
+    return record.finish()
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

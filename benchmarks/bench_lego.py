@@ -11,71 +11,55 @@ The claims (issues 5, 6 and 7), all on NeRF-synthetic lego at 100 x 100 (``--dow
   grid's (issue 7).
 
 Each model is trained by the function behind its command (``pointfield nerf train``,
-``pointfield splat train``), evaluated on all ten held-out views every ``--eval-every`` steps.
-*Training seconds* are the run's clock minus the time spent in those evaluations (recorded by
-the training loop as ``evaluation_seconds``), so frequent evaluation does not penalise a model.
-One-time start-up -- reading the scene, building rays, compiling the hash-grid kernels with
-``torch.compile`` (``InstantNGP.warm_up``; cached on disk after the first run) -- happens
-before the clock starts and is reported separately as ``startup_seconds``. A run stopped by its
-time limit between two evaluations contributes its final evaluation (metrics.json, all held-out
-views) as the last point of its curve. Render time is the median of ``--renders``
-renders of held-out view 0 by the trained model (no gradients), after one warm-up render.
+``pointfield splat train``), evaluated on all ten held-out views every ``--eval-every`` steps;
+held-out PSNR is the mean of the per-view PSNRs for every model. Time to a PSNR is training
+seconds, evaluations excluded (:func:`harness.training_curve`), so frequent evaluation does not
+penalise a model. What the training clock leaves out -- reading the scene, building rays,
+compiling the hash-grid kernels with ``torch.compile`` (``InstantNGP.warm_up``; cached on disk
+after the first run), and the final evaluation on all held-out views -- is reported beside it.
+A run stopped by its time limit between two evaluations contributes its final evaluation
+(metrics.json) as the last point of its curve. Render time: after all models are trained, each
+renders held-out view 0 (no gradients), the models interleaved, median of ``--renders``.
 
 Run: ``make bench-lego`` (= ``python benchmarks/bench_lego.py``), or e.g.
-``--models ngp --ngp-seconds 60`` for one model. Results go to ``--out``/bench_lego.json.
+``--models ngp --ngp-seconds 60`` for one model. Run folders go to ``--out``, the record to
+``bench-output/lego.json``.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import statistics
+import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
+
+from harness import Record, device_name, interleaved, time_to, training_curve
 
 LEGO = Path(__file__).resolve().parents[2] / "shared" / "data" / "nerf" / "lego_blender"
 THRESHOLDS = (20.0, 25.0, 28.0, 31.0)
 SCENE = {"downscale": 8, "holdout_every": 10, "background": "white"}
 
 
-def training_curve(records: list[dict], final: dict) -> list[dict]:
-    """``[{"step", "training_seconds", "psnr"}]`` per evaluation, evaluation time taken out.
+def heldout_render(out: Path) -> tuple[object, Callable[[], object]]:
+    """The trained run in ``out``, and a render of its first held-out view through ``run.render``.
 
-    ``final`` is the run's metrics.json: the evaluation on all held-out views after the last
-    step, which is a point of the curve too when training stopped between two rounds (at the
-    time limit).
+    Every model is timed through the same call a user makes (``pointfield.load_run(RUN).render``).
     """
-    curve, evaluating = [], 0.0
-    for record in records:
-        evaluating += record.get("evaluation_seconds", 0.0)
-        if "psnr" in record:
-            curve.append({"step": record["step"], "training_seconds": round(record["seconds"] - evaluating, 2),
-                          "psnr": round(record["psnr"], 3)})
-    if not curve or final["steps"] > curve[-1]["step"]:
-        curve.append({"step": final["steps"], "training_seconds": round(final["seconds"] - evaluating, 2),
-                      "psnr": round(final["psnr"], 3)})
-    return curve
+    import pointfield
+    from pointfield.scenes.heldout import training_and_heldout
+
+    run = pointfield.load_run(out, "cpu")
+    _, heldout = training_and_heldout(run.scene)
+    cameras = run.scene.cameras[heldout[:1]]
+    return run, lambda: run.render(cameras)
 
 
-def time_to(curve: list[dict], psnr: float) -> dict | None:
-    """The first evaluation at or above ``psnr``, or None."""
-    return next((point for point in curve if point["psnr"] >= psnr), None)
-
-
-def median_render_seconds(render, renders: int) -> float:
-    render()  # warm-up: caches, lazily built kernels
-    times = []
-    for _ in range(renders):
-        started = time.perf_counter()
-        render()
-        times.append(time.perf_counter() - started)
-    return statistics.median(times)
-
-
-def run_field(model: str, args, out: Path) -> dict:
-    from pointfield.fields import train as fields
+def run_field(model: str, args, out: Path) -> tuple[dict, Callable[[], object]]:
+    """Train ``model`` ("tiny" or "ngp") into ``out``: its summary, and a render of held-out view 0."""
+    from pointfield.fields.train import train
     from pointfield.training import RunDirectory
 
     settings = {
@@ -83,76 +67,54 @@ def run_field(model: str, args, out: Path) -> dict:
         "ngp": {"steps": args.ngp_steps, "max_time": args.ngp_seconds, "eval_every": args.ngp_eval_every},
     }[model]
     started = time.perf_counter()
-    metrics = fields.train(args.scene, model=model, out=out, steps=settings["steps"], max_time=settings["max_time"],
-                           eval_every=settings["eval_every"], eval_views=10, progress=False, **SCENE)
+    metrics = train(args.scene, model=model, out=out, steps=settings["steps"], max_time=settings["max_time"],
+                    eval_every=settings["eval_every"], eval_views=10, progress=False, **SCENE)
     wall = time.perf_counter() - started
     records = RunDirectory(out).read_metrics_log()
-    folder, config, network, device = fields.load_run(out)
-    scene = fields.open_scene_of(config)
-    _, heldout = fields.training_and_heldout(scene)
-    rays = fields.scene_rays(scene, heldout[:1], device)
-    height, width = int(scene.cameras.height[heldout[0]]), int(scene.cameras.width[heldout[0]])
-    background = torch.as_tensor(scene.background, device=device)
-    seconds = median_render_seconds(lambda: fields.render_view(network, rays, height, width, background), args.renders)
-    return _summary(model, metrics, records, wall, seconds, network)
+    run, render = heldout_render(out)
+    summary = _summary(model, metrics, records, wall)
+    summary["parameters"] = sum(p.numel() for p in run.module.parameters())
+    return summary, render
 
 
-def run_splat(args, out: Path) -> dict:
-    from pointfield.splats import train as splats
+def run_splat(args, out: Path) -> tuple[dict, Callable[[], object]]:
+    """Train splats into ``out``: the summary, and a render of held-out view 0."""
+    from pointfield.splats.train import train
     from pointfield.training import RunDirectory
 
     started = time.perf_counter()
-    metrics = splats.train(args.scene, out=out, steps=args.splat_steps, max_time=args.splat_seconds,
-                           eval_every=args.splat_eval_every, eval_views=10, progress=False,
-                           downscale=SCENE["downscale"], holdout_every=SCENE["holdout_every"])
+    metrics = train(args.scene, out=out, steps=args.splat_steps, max_time=args.splat_seconds,
+                    eval_every=args.splat_eval_every, eval_views=10, progress=False,
+                    downscale=SCENE["downscale"], holdout_every=SCENE["holdout_every"])
     wall = time.perf_counter() - started
     records = RunDirectory(out).read_metrics_log()
-    from pointfield.fields.train import open_scene_of, training_and_heldout
-
-    config, gaussians, device = splats.load_run(out, "cpu")
-    scene = open_scene_of(config)
-    _, heldout = training_and_heldout(scene)
-    viewmats, Ks = splats.camera_matrices(scene.cameras[heldout[:1]], device)
-    background = torch.as_tensor(scene.background, dtype=torch.float32)
-    width, height = int(scene.cameras.width[heldout[0]]), int(scene.cameras.height[heldout[0]])
-
-    def render():
-        with torch.no_grad():
-            splats.render_views(gaussians, viewmats, Ks, width, height, background)
-
-    seconds = median_render_seconds(render, args.renders)
-    summary = _summary("splat", metrics, records, wall, seconds, None)
-    summary["splats"] = len(gaussians)
-    return summary
+    run, render = heldout_render(out)
+    summary = _summary("splat", metrics, records, wall)
+    summary["splats"] = len(run.gaussians)
+    return summary, render
 
 
-def _summary(model, metrics, records, wall, render_seconds, network) -> dict:
+def _summary(model, metrics, records, wall) -> dict:
     curve = training_curve(records, metrics)
-    training_seconds = curve[-1]["training_seconds"]
     return {
         "model": model,
         "final_psnr": round(metrics["psnr"], 3),
         "final_ssim": round(metrics["ssim"], 4),
         "steps": metrics["steps"],
-        "training_seconds": training_seconds,
-        "startup_seconds": round(wall - metrics["seconds"], 1),
+        "training_seconds": curve[-1]["training_seconds"],
+        "run_seconds": round(metrics["seconds"], 1),
+        "outside_clock_seconds": round(wall - metrics["seconds"], 1),
         "time_to": {f"{t:g} dB": time_to(curve, t) for t in THRESHOLDS},
-        "render_seconds": round(render_seconds, 4),
-        "parameters": None if network is None else sum(p.numel() for p in network.parameters()),
         "curve": curve,
     }
 
 
-def verdicts(results: dict) -> list[str]:
-    """The issues' claims, checked against this run's figures."""
-    lines = []
+def verdicts(results: dict, claim: Callable[[str, bool], None]) -> None:
+    """The issues' claims, checked against this run's figures, each passed to ``claim(text, ok)``."""
 
     def seconds_to(model, psnr):
         point = results.get(model, {}).get("time_to", {}).get(f"{psnr:g} dB")
         return None if point is None else point["training_seconds"]
-
-    def claim(text, ok):
-        lines.append(f"{'ok  ' if ok else 'MISS'} {text}")
 
     if "tiny" in results:
         claim(f"TinyNeRF reaches 20 dB (final {results['tiny']['final_psnr']:.2f} dB)",
@@ -174,10 +136,29 @@ def verdicts(results: dict) -> list[str]:
               results["splat"]["final_psnr"] >= 28)
         fps = 1 / results["splat"]["render_seconds"]
         claim(f"splats render 100x100 at >= 20 fps ({fps:.1f} fps)", fps >= 20)
-    return lines
 
 
-def main() -> None:
+def require_compiled_kernels(record: Record, models: list[str]) -> None:
+    """Where a compiler exists, the kernels of the trained models must have run compiled."""
+    from pointfield.compiling import compiler_available
+    from pointfield.fields.encodings.hashgrid import _FUSED_HASH_ENCODE
+    from pointfield.fields.sampling.occupancy import _FUSED_OCCUPIED_CANDIDATES
+    from pointfield.splats.rasterizer import _FUSED_BANDS, _FUSED_PROJECT, _FUSED_TILE_SPANS
+
+    kernels = {"ngp": [_FUSED_HASH_ENCODE, _FUSED_OCCUPIED_CANDIDATES],
+               "splat": [_FUSED_PROJECT, _FUSED_BANDS, _FUSED_TILE_SPANS]}
+    wanted = [kernel for model in models for kernel in kernels.get(model, [])]
+    if wanted and not compiler_available(torch.device("cpu")):
+        record.note("No C++ compiler was found: every kernel ran eagerly, as `backend=\"auto\"` does then.")
+    elif wanted:
+        record.require_compiled(*wanted)
+
+
+def time_cell(point: dict | None) -> str:
+    return "-" if point is None else f"{point['training_seconds']:.1f} s (step {point['step']:,})"
+
+
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", type=Path, default=LEGO, help=f"lego, Blender format (default {LEGO})")
     parser.add_argument("--models", nargs="+", choices=("tiny", "ngp", "splat"), default=["ngp", "tiny", "splat"])
@@ -193,7 +174,7 @@ def main() -> None:
     parser.add_argument("--splat-seconds", type=float, default=450.0)
     parser.add_argument("--splat-steps", type=int, default=5000)
     parser.add_argument("--splat-eval-every", type=int, default=100)
-    parser.add_argument("--renders", type=int, default=5, help="renders timed per model (median)")
+    parser.add_argument("--renders", type=int, default=5, help="renders timed per model, interleaved (median)")
     parser.add_argument("--threads", type=int, help="torch.set_num_threads (default: PyTorch's choice)")
     args = parser.parse_args()
     if not (args.scene / "transforms_train.json").is_file():
@@ -201,16 +182,41 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     args.out.mkdir(parents=True, exist_ok=True)
-    results = {}
+    from pointfield.devices import pick_device
+
+    record = Record(
+        "lego", "Radiance fields and splats on lego", issue="5, 6, 7", device=device_name(pick_device(None)),
+        about="NeRF-synthetic lego at 100 x 100 (`--downscale 8 --holdout-every 10`, white background; 90 views "
+              "trained on, 10 held out), each model trained by the function behind its command and scored on all "
+              "10 held-out views every `--*-eval-every` steps; held-out PSNR is the mean of per-view PSNR. Times "
+              "to a PSNR are training seconds, evaluations excluded; \"outside the clock\" is the run's wall time "
+              "minus its training clock: start-up (scene, rays, model, kernel compilation) and the final "
+              "evaluation. Renders: the trained models render held-out view 0, interleaved, median of "
+              f"{args.renders}.")
+    results, renders = {}, {}
     for model in args.models:
         out = args.out / model
-        results[model] = run_splat(args, out) if model == "splat" else run_field(model, args, out)
-        brief = {k: v for k, v in results[model].items() if k != "curve"}
-        print(json.dumps(brief), flush=True)
-    report = {"threads": torch.get_num_threads(), "results": results, "verdicts": verdicts(results)}
-    (args.out / "bench_lego.json").write_text(json.dumps(report, indent=2) + "\n")
-    print("\n".join(report["verdicts"]))
+        results[model], renders[model] = run_splat(args, out) if model == "splat" else run_field(model, args, out)
+        print(f"{model}: trained, final {results[model]['final_psnr']:.2f} dB", flush=True)
+    for model, timing in interleaved(renders, args.renders).items():
+        results[model]["render_seconds"] = round(timing.median, 4)
+        results[model]["render_spread"] = round(timing.spread, 3)
+    record.figures.update({"runs": str(args.out), "results": results})
+    require_compiled_kernels(record, args.models)
+    names = {"tiny": "TinyNeRF", "ngp": "hash grid (`ngp`)", "splat": "Gaussian splats"}
+    record.table(
+        ["model", "parameters", *(f"time to {t:g} dB" for t in THRESHOLDS), "final (held-out)", "training s",
+         "outside the clock s", "one 100x100 render"],
+        [[names[model], f"{result['splats']:,} splats" if "splats" in result else f"{result['parameters']:,}",
+          *(time_cell(result["time_to"][f"{t:g} dB"]) for t in THRESHOLDS),
+          f"{result['final_psnr']:.2f} dB, SSIM {result['final_ssim']:.3f}, {result['steps']:,} steps",
+          f"{result['training_seconds']:.1f}", f"{result['outside_clock_seconds']:.1f}",
+          f"{result['render_seconds']:.4f} s ({1 / result['render_seconds']:.1f} fps)"]
+         for model, result in results.items()],
+    )
+    verdicts(results, record.verdict)
+    return record.finish()
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -21,15 +21,13 @@ Usage::
     python benchmarks/bench_pointnet.py --quick      # a smoke run of every part (~3 min)
     python benchmarks/bench_pointnet.py --only speed # just the speed table
 
-Results are printed and written to ``bench-output/pointnet.json``.
+Results are printed and recorded in ``bench-output/pointnet.json`` (harness.py).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -50,6 +48,8 @@ from pointfield.clouds.shapes import SyntheticShapes
 from pointfield.clouds.tasks import confusion_on, evaluation_transform, training_transform
 from pointfield.metrics import accuracy
 from pointfield.training import fit
+
+from harness import Record, interleaved
 
 CLASSES = 10
 POINTS = 1024
@@ -72,9 +72,8 @@ class LessonPointNet(nn.Module):
         self.fc2, self.bn5 = nn.Linear(512, 256), nn.BatchNorm1d(256)
         self.dropout = nn.Dropout(0.3)
         self.fc3 = nn.Linear(256, num_classes)
-        self.regulariser = torch.zeros(())
 
-    def forward(self, points, features=None, mask=None):
+    def forward(self, points, features=None, mask=None, with_regulariser=False):
         x = points.transpose(1, 2)  # (B, 3, N)
         x = F.relu(self.bn1(self.conv1(x)))
         x = F.relu(self.bn2(self.conv2(x)))
@@ -82,7 +81,8 @@ class LessonPointNet(nn.Module):
         x = torch.max(x, 2)[0]
         x = F.relu(self.bn4(self.fc1(x)))
         x = F.relu(self.bn5(self.dropout(self.fc2(x))))
-        return self.fc3(x)
+        logits = self.fc3(x)
+        return (logits, logits.new_zeros(())) if with_regulariser else logits
 
 
 def lesson_sized_pointnet(num_classes: int) -> PointNetClassifier:
@@ -116,7 +116,7 @@ def parameter_counts() -> dict[str, int]:
 def speed(models: dict[str, nn.Module], batch: int, rounds: int, steps: int) -> dict[str, dict]:
     """Median samples/s of training steps (Adam) and of inference, models interleaved.
 
-    Interleaving rounds (A, B, A, B, ...) spreads any slowdown of a shared machine over all
+    Interleaving rounds (harness.interleaved) spreads any slowdown of a shared machine over all
     models alike; the median of the rounds discards the worst of it.
     """
     torch.manual_seed(0)
@@ -130,7 +130,8 @@ def speed(models: dict[str, nn.Module], batch: int, rounds: int, steps: int) -> 
         model.train()
         for _ in range(steps):
             optimizer.zero_grad(set_to_none=True)
-            loss = F.cross_entropy(model(points), labels) + model.regulariser
+            logits, regulariser = model(points, with_regulariser=True)
+            loss = F.cross_entropy(logits, labels) + regulariser
             loss.backward()
             optimizer.step()
 
@@ -143,16 +144,10 @@ def speed(models: dict[str, nn.Module], batch: int, rounds: int, steps: int) -> 
 
     results = {name: {} for name in models}
     for mode, run in (("train", train_steps), ("inference", infer_steps)):
-        for name in models:
-            run(name)  # warm-up: allocator, kernels, lazy imports
-        times = {name: [] for name in models}
-        for _ in range(rounds):
-            for name in models:
-                start = time.perf_counter()
-                run(name)
-                times[name].append(time.perf_counter() - start)
-        for name in models:
-            results[name][mode] = batch * steps / statistics.median(times[name])
+        timings = interleaved({name: (lambda name=name: run(name)) for name in models}, rounds)
+        for name, timing in timings.items():
+            results[name][mode] = batch * steps / timing.median
+            results[name][f"{mode}_spread"] = timing.spread
     return results
 
 
@@ -177,8 +172,8 @@ def train_same_recipe(model: nn.Module, epochs: int, shapes_per_class: int, seed
         )
 
     def step(batch):
-        logits = model(batch.points)
-        return F.cross_entropy(logits, batch.labels) + model.regulariser, {}
+        logits, regulariser = model(batch.points, with_regulariser=True)
+        return F.cross_entropy(logits, batch.labels) + regulariser, {}
 
     start = time.perf_counter()
     fit(model, optimizer, step, batches, epochs, scheduler=scheduler, progress=True,
@@ -213,7 +208,7 @@ def main() -> int:
                         help="run one part only")
     parser.add_argument("--compare-epochs", type=int, default=4,
                         help="epochs of the same-recipe accuracy comparison (default 4)")
-    parser.add_argument("--out", type=Path, default=Path("bench-output"))
+    parser.add_argument("--out", type=Path, default=Path("bench-output"), help="run folders of the accuracy part")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     if args.only:
@@ -222,72 +217,80 @@ def main() -> int:
         parts = {"params", "speed", "compare", "accuracy"}
     else:
         parts = {"params", "speed", "compare"}
-    results: dict = {"threads": torch.get_num_threads(), "torch": torch.__version__}
+    record = Record(
+        "pointnet", "PointNet family on the CPU", issue="3",
+        about="pointfield's PointNet against the same network written the way the lesson writes it (Conv1d "
+              "layers on (B, C, N), same layer sizes), batch 32 x 1,024 points, 10 classes, the two interleaved; "
+              "both trained with the same recipe on the same synthetic shapes for the accuracy comparison. Also: "
+              "parameter counts, the speed of PointNet with T-Nets and of PointNet++ SSG / MSG, and (with --full) "
+              "the test accuracy of `pointfield classify train`'s default recipe.")
+    results = record.figures
+    if args.quick:
+        record.note("A smoke run (--quick): few rounds, shapes and epochs; its verdicts do not test the claims.")
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, CPU")
 
     if "params" in parts:
-        print("\nParameters (measured)")
         results["parameters"] = parameter_counts()
-        for name, count in results["parameters"].items():
-            print(f"  {count:>10,}  {name}")
+        record.table(["model", "parameters"], [[name, f"{count:,}"] for name, count in results["parameters"].items()],
+                     title="Parameters (measured)")
 
     if "speed" in parts:
         rounds, steps = (3, 1) if args.quick else (7, 2)
-        print(f"\nSpeed: batch 32 x {POINTS} points, {CLASSES} classes, median of {rounds} "
-              f"interleaved rounds of {steps} steps")
         torch.manual_seed(0)
         lesson = {"lesson reference (Conv1d)": LessonPointNet(CLASSES),
                   "pointfield PointNet, same sizes": lesson_sized_pointnet(CLASSES)}
         lesson_speed = speed(lesson, 32, rounds, steps)
-        (ref_name, ref), (pf_name, pf) = lesson_speed.items()
-        for name, value in lesson_speed.items():
-            print(f"  {name:<36} train {value['train']:7.1f} samples/s   "
-                  f"inference {value['inference']:7.1f} samples/s")
+        (_, ref), (_, pf) = lesson_speed.items()
         ratios = {mode: pf[mode] / ref[mode] for mode in ("train", "inference")}
-        print(f"  speed-up: train {ratios['train']:.2f}x, inference {ratios['inference']:.2f}x "
-              f"(claim: >= 1.3x)")
         others = {"PointNet, both T-Nets (batch 32)": PointNetClassifier(CLASSES)}
         other_speed = speed(others, 32, max(3, rounds // 2), 1)
         family = {"PointNet++ SSG (batch 16)": PointNet2Classifier(CLASSES),
                   "PointNet++ MSG (batch 16)": PointNet2Classifier(CLASSES, multi_scale=True)}
         family_speed = speed(family, 16, 3, 1)
-        for name, value in {**other_speed, **family_speed}.items():
-            print(f"  {name:<36} train {value['train']:7.1f} samples/s   "
-                  f"inference {value['inference']:7.1f} samples/s")
-        results["speed"] = {**lesson_speed, **other_speed, **family_speed, "speed-up": ratios}
+        everything = {**lesson_speed, **other_speed, **family_speed}
+        record.table(
+            ["model", "train samples/s", "spread", "inference samples/s", "spread"],
+            [[name, f"{value['train']:.1f}", f"{value['train_spread']:.0%}", f"{value['inference']:.1f}",
+              f"{value['inference_spread']:.0%}"] for name, value in everything.items()],
+            title=f"Speed: batch 32 x {POINTS} points (PointNet++: 16), {CLASSES} classes; lesson and pointfield: "
+                  f"median of {rounds} interleaved rounds of {steps} steps",
+        )
+        for mode in ("train", "inference"):
+            record.verdict(f"pointfield PointNet, {mode}: >= 1.3x the lesson reference's samples/s",
+                           ratios[mode] >= 1.3, f"{ratios[mode]:.2f}x")
+        results["speed"] = {**everything, "speed-up": ratios}
 
     if "compare" in parts:
         epochs = 1 if args.quick else args.compare_epochs
         shapes = 10 if args.quick else 100
-        print(f"\nSame recipe, same data ({shapes * CLASSES} training shapes, {epochs} epochs): "
-              "test accuracy")
         comparison = {}
         for name, factory in (("lesson reference (Conv1d)", LessonPointNet),
                               ("pointfield PointNet, same sizes", lesson_sized_pointnet)):
             torch.manual_seed(0)
-            print(f"  training {name}")
+            print(f"  training {name}", flush=True)
             score, seconds = train_same_recipe(factory(CLASSES), epochs, shapes)
             comparison[name] = {"accuracy": score, "seconds": seconds}
-            print(f"  {name:<36} accuracy {score:.4f}  ({seconds:.0f} s)")
+        record.table(["model", "test accuracy", "training s"],
+                     [[name, f"{value['accuracy']:.1%}", f"{value['seconds']:.0f}"] for name, value in comparison.items()],
+                     title=f"Same recipe, same data ({shapes * CLASSES} training shapes, {epochs} epochs)")
         results["same_recipe"] = comparison
 
     if "accuracy" in parts:
         shapes, epochs = (10, 1) if args.quick else (None, None)
-        print("\nSynthetic shapes, 10 classes, 1,024 points: `pointfield classify train` "
-              "default recipe")
-        accuracy_results = {}
+        accuracy_results, rows = {}, []
         for model, claim in (("pointnet", 0.95), ("pointnet2", 0.97)):
             metrics, seconds = recipe_accuracy(model, args.out, shapes, epochs)
-            verdict = "meets" if metrics["accuracy"] >= claim else "MISSES"
-            print(f"  {model:<10} test accuracy {metrics['accuracy']:.4f} after "
-                  f"{metrics['epochs']} epochs in {seconds / 60:.1f} min "
-                  f"({verdict} the {claim:.0%} claim)")
             accuracy_results[model] = {**metrics, "wall_seconds": seconds, "claim": claim}
+            rows.append([model, f"{metrics['accuracy']:.1%}", f"{metrics['epochs']}", f"{seconds / 60:.1f}"])
+        record.table(["model", "test accuracy", "epochs", "minutes"], rows,
+                     title="Synthetic shapes, 10 classes, 1,024 points: `pointfield classify train` default recipe"
+                           + (" (--quick: 10 shapes a class, 1 epoch)" if args.quick else ""))
+        for model, result in accuracy_results.items():
+            record.verdict(f"{model} reaches {result['claim']:.0%} test accuracy", result["accuracy"] >= result["claim"],
+                           f"{result['accuracy']:.1%}")
         results["synthetic_accuracy"] = accuracy_results
 
-    (args.out / "pointnet.json").write_text(json.dumps(results, indent=2) + "\n")
-    print(f"\nwrote {args.out / 'pointnet.json'}")
-    return 0
+    return record.finish()
 
 
 if __name__ == "__main__":

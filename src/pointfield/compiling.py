@@ -58,6 +58,11 @@ class CompiledOrEager:
         self.failed = False
         self._compiled: Callable[..., Any] | None = None
 
+    @property
+    def ran_compiled(self) -> bool:
+        """Whether a compiled version was built and has not failed (what benchmarks check)."""
+        return self._compiled is not None and not self.failed
+
     def wanted(self, backend: str, device: torch.device) -> bool:
         if backend not in BACKENDS:
             raise ValueError(f"unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")
