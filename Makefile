@@ -27,7 +27,7 @@ $(BIN)/.open3d: $(BIN)/.installed
 	$(BIN)/python -c "import open3d"
 	touch $@
 
-# Each benchmark writes its record to bench-output/<name>.json; bench-report turns the records
+# Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
 bench: bench-formats bench-fuzz bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat
 	$(MAKE) bench-report

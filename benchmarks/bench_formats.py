@@ -9,7 +9,7 @@ The PLY and PCD files are written by open3d itself, so each reader reads the pee
 Times are the median of several interleaved runs with a warm page cache.
 
 Run: ``make bench-formats`` (or ``python benchmarks/bench_formats.py --points 2000000``); the
-record goes to ``bench-output/formats.json``.
+record goes to ``benchmarks/records/formats.json``.
 """
 
 from __future__ import annotations

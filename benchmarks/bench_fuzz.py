@@ -4,7 +4,7 @@ Reports how many inputs were tried, the outcomes, and the slowest inputs (the cl
 more than a second). Uses the same seeds and mutations as tests/clouds/formats/test_fuzz.py.
 
 Run: ``make bench-fuzz`` (or ``python benchmarks/bench_fuzz.py --per-seed 1000``); the record goes
-to ``bench-output/fuzz.json``.
+to ``benchmarks/records/fuzz.json``.
 """
 
 from __future__ import annotations

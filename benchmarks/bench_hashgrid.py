@@ -32,7 +32,7 @@ of ``InstantNGP`` with ``max_resolution`` set from the image size (twice its sid
 16 levels, F = 2, 2^19 entries, N_max 2048); listed once when they are the same.
 
 Every implementation is timed against the others in the same run, interleaved (harness.py); the
-record goes to ``bench-output/hashgrid.json``.
+record goes to ``benchmarks/records/hashgrid.json``.
 
 Run: ``make bench-hashgrid`` (= ``.venv/bin/python benchmarks/bench_hashgrid.py``), a few minutes
 on 2 cores; shorter: ``--points 16384 --repeats 2 --memory-steps 2 --render-chunks 1``, or

@@ -23,7 +23,7 @@ renders held-out view 0 (no gradients), the models interleaved, median of ``--re
 
 Run: ``make bench-lego`` (= ``python benchmarks/bench_lego.py``), or e.g.
 ``--models ngp --ngp-seconds 60`` for one model. Run folders go to ``--out``, the record to
-``bench-output/lego.json``.
+``benchmarks/records/lego.json``.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ lego-like occupancy (a ball of radius 0.8 on a floor slab, 11 % of the cells), s
 lego's first camera at 100 x 100 (``--downscale 8``).
 
 Run: ``python benchmarks/bench_march.py`` (``make bench-march``); the record goes to
-``bench-output/march.json``.
+``benchmarks/records/march.json``.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ TinyNeRF reaches at least 20 dB held-out PSNR and NeRF at least 23 dB. The bench
 each model with ``pointfield.fields.train.train`` (the code behind ``pointfield nerf train``)
 and reports the held-out PSNR (the mean of per-view PSNR) and SSIM, the training time
 (evaluations excluded, as every benchmark counts it: :func:`harness.training_curve`), and the
-time to render one 100 x 100 view. The record goes to ``bench-output/nerf.json``.
+time to render one 100 x 100 view. The record goes to ``benchmarks/records/nerf.json``.
 
 Run: ``python benchmarks/bench_nerf.py`` (the full recipe: hours on a CPU, minutes on a GPU),
 or shorter with ``--steps-tiny 200 --steps-nerf 50 --max-time 600`` for a smoke run whose

@@ -21,7 +21,7 @@ Usage::
     python benchmarks/bench_pointnet.py --quick      # a smoke run of every part (~3 min)
     python benchmarks/bench_pointnet.py --only speed # just the speed table
 
-Results are printed and recorded in ``bench-output/pointnet.json`` (harness.py).
+Results are printed and recorded in ``benchmarks/records/pointnet.json`` (harness.py).
 """
 
 from __future__ import annotations

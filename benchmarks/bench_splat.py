@@ -14,7 +14,7 @@ gradients.
 
 Run: ``python benchmarks/bench_splat.py --out runs/bench-splat`` (``--threads 1`` on a busy
 machine: with more threads than free cores, PyTorch's thread pool spins and every step slows
-down many times over); the record goes to ``bench-output/splat.json``.
+down many times over); the record goes to ``benchmarks/records/splat.json``.
 """
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ largest difference between the fast image and the reference's shows they draw th
 
 Run: ``python benchmarks/bench_splat_render.py --threads 1`` (on a busy machine, more threads
 than free cores make PyTorch's thread pool spin and every render many times slower); the record
-goes to ``bench-output/splat-render.json``.
+goes to ``benchmarks/records/splat-render.json``.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """What every benchmark shares: peer timing, the compiled-path check, time to PSNR, and its record.
 
 A benchmark builds a :class:`Record`, measures, adds tables and verdicts to it (each printed as
-it is added), and ends with :meth:`Record.finish`, which writes ``bench-output/<name>.json``
+it is added), and ends with :meth:`Record.finish`, which writes ``benchmarks/records/<name>.json``
 with the figures and the conditions they were measured under (commit, uncommitted changes,
 threads, CPUs, load before and after, date, device). ``benchmarks/report.py`` turns those
 records into ``benchmarks/RESULTS.md``, each section headed by the command that printed it::
@@ -39,7 +39,7 @@ from pointfield.atomic import atomic_path
 from pointfield.compiling import CompiledOrEager
 
 ROOT = Path(__file__).resolve().parents[1]
-OUTPUT = Path("bench-output")
+OUTPUT = Path(__file__).resolve().parent / "records"  # committed, so RESULTS.md can be regenerated anywhere
 ENVIRONMENT_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "CUDA_VISIBLE_DEVICES")
 """Variables that change what a benchmark measures; when set they are part of its command."""
 
@@ -142,7 +142,7 @@ def time_to(curve: list[dict[str, Any]], psnr: float) -> dict[str, Any] | None:
 class Record:
     """One benchmark run: its command, conditions, tables and verdicts; written by :meth:`finish`.
 
-    ``name`` names the file (``bench-output/<name>.json``) and the section of RESULTS.md;
+    ``name`` names the file (``benchmarks/records/<name>.json``) and the section of RESULTS.md;
     ``title`` heads the section; ``issue`` is the tracker issue whose claims it checks; ``about``
     is a paragraph saying what is measured and against which peer.
     """
