@@ -162,7 +162,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", type=Path, default=LEGO, help=f"lego, Blender format (default {LEGO})")
     parser.add_argument("--models", nargs="+", choices=("tiny", "ngp", "splat"), default=["ngp", "tiny", "splat"])
-    parser.add_argument("--out", type=Path, default=Path("bench-output/lego"), help="run folders and the JSON")
+    parser.add_argument("--out", type=Path, default=Path("bench-output/lego"), help="run folders (the record goes to benchmarks/records/lego.json)")
     parser.add_argument("--ngp-seconds", type=float, default=300.0)
     parser.add_argument("--ngp-eval-every", type=int, default=25)
     parser.add_argument("--ngp-steps", type=int, default=1500,
