@@ -1,10 +1,17 @@
-"""Shared fixtures: the real files in ../shared/data, skipped with a reason when absent."""
+"""Shared fixtures: the real files in ../shared/data (skipped with a reason when absent), one torch
+thread for tiny models, and the best score a flat colour can reach on the synthetic cube."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
+import torch
+
+from pointfield.metrics import psnr
+from pointfield.scenes import synthetic_scene
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -15,3 +22,33 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real data not available: {SHARED_DATA} does not exist")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """Torch on one thread for a module: tiny models run faster so, and steadily on busy cores."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="session")
+def best_flat_colour_psnr() -> Callable[[int, int], float]:
+    """``(views, size) -> dB``: the highest PSNR any one-colour image scores on a held-out cube view.
+
+    For each view that colour is the view's own mean colour (it minimises the squared error),
+    so no scene model that ignores where its rays go can score more.
+    """
+
+    def best(views: int, size: int) -> float:
+        scene = synthetic_scene("cube", views=views, size=size)
+        held_out = [int(i) for name in ("test", "val") for i in scene.splits.get(name, [])]
+        scores = []
+        for index in held_out:
+            image = scene.image(index)
+            flat = np.broadcast_to(image.reshape(-1, 3).mean(axis=0), image.shape)
+            scores.append(psnr(flat, image))
+        return max(scores)
+
+    return best

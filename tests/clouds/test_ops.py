@@ -10,13 +10,7 @@ from pointfield.clouds import ops
 from pointfield.clouds.cloud import PointCloud
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_torch_thread():
-    """Small tensors: one torch thread is faster than several, and steady on busy cores."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def random_cloud(count: int = 500, seed: int = 0) -> np.ndarray:

@@ -5,12 +5,8 @@ oversubscribed thread pool makes them many times slower. The setting is restored
 """
 
 import pytest
-import torch
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread_here(one_torch_thread):
+    """Every module here runs with :func:`one_torch_thread` (tests/conftest.py)."""

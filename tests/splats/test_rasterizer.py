@@ -8,12 +8,10 @@ import contextlib
 import math
 import warnings
 
-import numpy as np
 import pytest
 import torch
 
 from pointfield.compiling import compiler_available
-from pointfield.splats.gaussians import Gaussians
 from pointfield.splats.ply import read_splats
 from pointfield.splats.rasterizer import (
     MIN_ALPHA,

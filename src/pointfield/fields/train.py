@@ -34,7 +34,6 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import Any
 
 import torch
@@ -42,7 +41,13 @@ import torch
 from pointfield.errors import PointfieldError
 from pointfield.fields.field import RayBudget
 from pointfield.fields.rays import RayBundle
-from pointfield.fields.run import TASK, build_field, identity_of, render_field, scene_depth_bounds
+from pointfield.fields.run import (
+    TASK,
+    build_field,
+    identity_of,
+    render_field,
+    scene_depth_bounds,
+)
 from pointfield.fields.scene_box import default_max_resolution, scene_bounds
 from pointfield.metrics import psnr_from_mse
 from pointfield.scenes.heldout import (
@@ -50,6 +55,7 @@ from pointfield.scenes.heldout import (
     heldout_scores,
     open_scene_of,
     ray_bounds,
+    scene_config,
     training_and_heldout,
 )
 from pointfield.scenes.scene import Scene
@@ -101,17 +107,11 @@ class NerfTask(Task):
         model = settings["model"]
         if model not in DEFAULT_STEPS:
             raise PointfieldError(f"unknown NeRF model {model!r}; choose one of {', '.join(DEFAULT_STEPS)}")
-        scene = settings["scene"]
         config = {
             "task": TASK,
             "model": model,
             "model_options": dict(settings["model_options"] or {}),
-            "scene": None if scene is None else str(Path(scene).resolve()),
-            "cube_views": int(settings["cube_views"]),
-            "cube_size": int(settings["cube_size"]),
-            "downscale": int(settings["downscale"]),
-            "holdout_every": settings["holdout_every"],
-            "background": settings["background"],
+            **scene_config(settings),
             "scene_box": settings["scene_box"],
             "batch_rays": int(settings["batch_rays"]),
             "steps": int(settings["steps"] if settings["steps"] is not None else DEFAULT_STEPS[model]),

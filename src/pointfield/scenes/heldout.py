@@ -20,6 +20,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -66,6 +67,23 @@ def open_scene(
     if background is not None:
         opened = opened.with_background(background)
     return opened
+
+
+SCENE_SETTINGS = ("scene", "cube_views", "cube_size", "downscale", "holdout_every", "background")
+"""What a scene run's ``config.json`` records of its scene: the arguments of :func:`open_scene`."""
+
+
+def scene_config(settings: dict[str, Any]) -> dict[str, Any]:
+    """The :data:`SCENE_SETTINGS` of a new run's config, from the caller's settings (paths made absolute)."""
+    scene = settings["scene"]
+    return {
+        "scene": None if scene is None else str(Path(scene).resolve()),
+        "cube_views": int(settings["cube_views"]),
+        "cube_size": int(settings["cube_size"]),
+        "downscale": int(settings["downscale"]),
+        "holdout_every": settings["holdout_every"],
+        "background": settings["background"],
+    }
 
 
 def open_scene_of(config: dict[str, Any]) -> Scene:

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import math
 import os
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -43,6 +42,7 @@ from pointfield.scenes.heldout import (
     depth_range,
     heldout_scores,
     open_scene_of,
+    scene_config,
     training_and_heldout,
 )
 from pointfield.scenes.paths import scene_centre_and_up
@@ -50,7 +50,13 @@ from pointfield.scenes.scene import Scene
 from pointfield.splats.densification import DefaultStrategy
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
 from pointfield.splats.loss import splat_loss
-from pointfield.splats.run import TASK, camera_matrices, render_camera, render_views, scene_scale
+from pointfield.splats.run import (
+    TASK,
+    camera_matrices,
+    render_camera,
+    render_views,
+    scene_scale,
+)
 from pointfield.training import lifecycle
 from pointfield.training.loop import TrainingState
 from pointfield.training.run import RunDirectory
@@ -106,15 +112,9 @@ class SplatTask(Task):
 
     @classmethod
     def configure(cls, settings: dict[str, Any]) -> dict[str, Any]:
-        scene = settings["scene"]
         config = {
             "task": TASK,
-            "scene": None if scene is None else str(Path(scene).resolve()),
-            "cube_views": int(settings["cube_views"]),
-            "cube_size": int(settings["cube_size"]),
-            "downscale": int(settings["downscale"]),
-            "holdout_every": settings["holdout_every"],
-            "background": settings["background"],
+            **scene_config(settings),
             "steps": int(settings["steps"] if settings["steps"] is not None else DEFAULT_STEPS),
             "max_splats": int(settings["max_splats"] if settings["max_splats"] is not None else DEFAULT_MAX_SPLATS),
             "initial_splats": int(settings["initial_splats"]),

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 import os
-import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -17,10 +16,11 @@ from pointfield.clouds.datasets.base import PART_LABEL_FIELD, SPLITS, InMemoryCl
 from pointfield.clouds.datasets.loading import (
     DEFAULT_MESH_POINTS,
     FileLoader,
+    load_or_skip,
     with_progress,
 )
 from pointfield.clouds.formats import formats
-from pointfield.errors import FormatError, PointfieldError
+from pointfield.errors import PointfieldError
 
 ON_ERROR = ("skip", "fail")
 HOLDOUT_FRACTION = 0.2
@@ -94,14 +94,8 @@ class CloudFolder(InMemoryClouds):
         for path, class_name in with_progress(chosen, progress, f"reading {self.root.name}"):
             if class_name is not None and class_name not in self.classes:
                 continue
-            try:
-                cloud = loader(path)
-            except (PointfieldError, OSError, ValueError) as error:
-                reason = getattr(error, "reason", None) or str(error)
-                if on_error == "fail":
-                    raise FormatError(path, reason) from error
-                warnings.warn(f"{path}: skipped: {reason}", stacklevel=2)
-                self.skipped.append((path, reason))
+            cloud = load_or_skip(loader, path, on_error, self.skipped)
+            if cloud is None:
                 continue
             self.clouds.append(cloud)
             self.labels.append(self.classes.index(class_name) if class_name is not None else -1)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -20,7 +21,7 @@ from pointfield.clouds.datasets.base import PART_LABEL_FIELD
 from pointfield.clouds.datasets.cache import CACHED_SUFFIXES, SampleCache
 from pointfield.clouds.formats import read
 from pointfield.clouds.mesh import Mesh
-from pointfield.errors import FormatError
+from pointfield.errors import FormatError, PointfieldError
 
 DEFAULT_MESH_POINTS = 2048
 
@@ -92,6 +93,24 @@ class FileLoader:
         ):
             return None
         return self.cache.entry(path)
+
+
+def load_or_skip(
+    loader: FileLoader, path: Path, on_error: str, skipped: list[tuple[Path, str]]
+) -> PointCloud | None:
+    """``loader(path)``; a file that cannot be read raises (``on_error="fail"``) or is skipped.
+
+    A skipped file is named in a warning and added to ``skipped`` with the reason; None is returned.
+    """
+    try:
+        return loader(path)
+    except (PointfieldError, OSError, ValueError) as error:
+        reason = getattr(error, "reason", None) or str(error)
+        if on_error == "fail":
+            raise FormatError(path, reason) from error
+        warnings.warn(f"{path}: skipped: {reason}", stacklevel=3)
+        skipped.append((path, reason))
+        return None
 
 
 def clean_cloud(cloud: PointCloud, path: Path) -> PointCloud:

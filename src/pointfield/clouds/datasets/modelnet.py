@@ -8,7 +8,6 @@ the ``ply_hdf5_2048`` HDF5 files itself.
 from __future__ import annotations
 
 import os
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from pointfield.clouds.datasets.loading import (
     DEFAULT_MESH_POINTS,
     FileLoader,
     clean_cloud,
+    load_or_skip,
     with_progress,
 )
 from pointfield.errors import FormatError, PointfieldError
@@ -144,14 +144,8 @@ class ModelNet(InMemoryClouds):
             path = self.root / class_name / f"{shape_id}.txt"
             if class_name not in self.classes:
                 raise FormatError(split_list, f"{shape_id!r} names no class of {variant}")
-            try:
-                cloud = loader(path)
-            except (PointfieldError, OSError, ValueError) as error:
-                reason = getattr(error, "reason", None) or str(error)
-                if on_error == "fail":
-                    raise FormatError(path, reason) from error
-                warnings.warn(f"{path}: skipped: {reason}", stacklevel=2)
-                self.skipped.append((path, reason))
+            cloud = load_or_skip(loader, path, on_error, self.skipped)
+            if cloud is None:
                 continue
             self.clouds.append(cloud)
             self.labels.append(self.classes.index(class_name))
