@@ -10,7 +10,9 @@
    written; the task warms up off the clock;
 4. :func:`~pointfield.training.fit` trains, checkpointing atomically, resuming where a killed
    run stopped;
-5. the task's final metrics go to ``metrics.json``.
+5. the task's final metrics go to ``metrics.json``, with ``startup_seconds``: this session's
+   time from the call to the first step (data, model, kernel compilation), which the training
+   clock leaves out.
 
 Under ``torchrun`` every process runs the same lifecycle; only rank 0 writes.
 
@@ -23,6 +25,7 @@ loading, see :mod:`~pointfield.training.checkpoints`).
 from __future__ import annotations
 
 import os
+import time
 from typing import Any
 
 import torch
@@ -57,6 +60,7 @@ def train(
     that many seconds, summed over resumed sessions. Launched by ``torchrun`` with several
     processes, this trains with DistributedDataParallel.
     """
+    started = time.perf_counter()
     distributed, torch_device = processes.setup(device)
     is_main = distributed is None or distributed.is_main
     try:
@@ -76,6 +80,9 @@ def train(
             run.create(resume)  # only now: a bad scene or option leaves an existing folder untouched
             run.write_config(task.config)
         task.warm_up()
+        # Opening the data, building the model, compiling kernels: reported beside the training
+        # clock, never on it (this session's; a resumed run's earlier start-ups are gone).
+        startup_seconds = time.perf_counter() - started
 
         def step(batch: Any) -> tuple[torch.Tensor, dict[str, float]]:
             return task.step(batch).total()
@@ -87,7 +94,7 @@ def train(
             resume=resume, checkpoint_seconds=checkpoint_seconds, max_seconds=max_time,
             distributed=distributed, device=torch_device, progress=task.progress,
         )
-        metrics = task.finish(run, state)
+        metrics = {**task.finish(run, state), "startup_seconds": round(startup_seconds, 3)}
         if is_main:
             run.write_final_metrics(metrics)
         return metrics
