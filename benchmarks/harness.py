@@ -227,10 +227,13 @@ def command_line(argv: list[str]) -> str:
 def environment_before() -> dict[str, Any]:
     """The conditions at the start: code version, threads, CPUs, load, date."""
     commit, changed = _git("rev-parse", "HEAD"), _git("status", "--porcelain", "--untracked-files=no")
+    # Other benchmarks' fresh records and the report made from them are output, not code.
+    changed_files = [line[3:] for line in (changed or "").splitlines()
+                     if not line[3:].startswith(("benchmarks/records/", "benchmarks/RESULTS.md"))]
     return {
         "commit": (commit or "unknown").strip(),
-        "dirty": bool(changed),
-        "changed_files": [line[3:] for line in (changed or "").splitlines()],
+        "dirty": bool(changed_files),
+        "changed_files": changed_files,
         "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
         "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(),
