@@ -267,7 +267,6 @@ class CloudTask(Task):
             **scores_of(confusion, self.name),
             "per_class": per_class_scores(confusion, self.name, label_names(self.config)),
             "epochs": state.epoch,
-            "seconds": round(state.seconds, 3),
             "test_samples": len(self.test_set),
             "train_samples": len(self.train_set),
             "model": self.config["model"],

@@ -223,8 +223,6 @@ class NerfTask(Task):
             **scores,
             "steps": state.step,
             "epochs": state.step / self.steps_per_epoch,
-            "seconds": round(state.seconds, 3),
-            "training_seconds": round(state.training_seconds, 3),
             "training_rays": len(self.rays),
         }
 

@@ -209,8 +209,7 @@ class SplatTask(Task):
         scores, renders = heldout_scores(self.render, self.scene, self.heldout_frames, keep_renders=True)
         near, far = depth_range(self.scene, [view for _, view, _ in renders])
         save_panels(run.path / HELDOUT_DIR, renders, near, far)
-        return {**scores, "splats": len(self.model), "steps": state.step, "seconds": round(state.seconds, 3),
-                "training_seconds": round(state.training_seconds, 3)}
+        return {**scores, "splats": len(self.model), "steps": state.step}
 
 
 def train(

@@ -10,9 +10,10 @@
    written; the task warms up off the clock;
 4. :func:`~pointfield.training.fit` trains, checkpointing atomically, resuming where a killed
    run stopped;
-5. the task's final metrics go to ``metrics.json``, with ``startup_seconds``: this session's
-   time from the call to the first step (data, model, kernel compilation), which the training
-   clock leaves out.
+5. the task's final metrics go to ``metrics.json``, with the clock's figures, the same for
+   every task: ``seconds`` (wall clock, evaluation included), ``training_seconds`` (evaluation
+   excluded) and ``startup_seconds`` (this session's time from the call to the first step:
+   data, model, kernel compilation, which neither clock counts).
 
 Under ``torchrun`` every process runs the same lifecycle; only rank 0 writes.
 
@@ -94,7 +95,12 @@ def train(
             resume=resume, checkpoint_seconds=checkpoint_seconds, max_seconds=max_time,
             distributed=distributed, device=torch_device, progress=task.progress,
         )
-        metrics = {**task.finish(run, state), "startup_seconds": round(startup_seconds, 3)}
+        metrics = {
+            **task.finish(run, state),
+            "seconds": round(state.seconds, 3),
+            "training_seconds": round(state.training_seconds, 3),
+            "startup_seconds": round(startup_seconds, 3),
+        }
         if is_main:
             run.write_final_metrics(metrics)
         return metrics

@@ -114,5 +114,5 @@ class Task:
         """Redraw the run's pictures from its history (rank 0 only); nothing by default."""
 
     def finish(self, run: RunDirectory, state: TrainingState) -> dict[str, Any]:
-        """The final metrics (written to ``metrics.json``), and any final pictures."""
+        """The task's final metrics and any final pictures; the lifecycle adds the clock's figures."""
         raise NotImplementedError
