@@ -28,6 +28,7 @@ from pointfield.errors import PointfieldError
 from pointfield.scenes.cameras import Cameras
 from pointfield.scenes.heldout import (
     OUTPUTS,
+    Renderer,
     View,
     as_numpy,
     depth_range,
@@ -92,11 +93,22 @@ class SceneRun(Run):
         anything else a folder of PNGs. The path goes round the training scene unless ``scene``
         (read at ``downscale``) is given.
         """
-        out = Path(out)
-        check_views_output(out)  # before anything is rendered
         around = self.scene if scene is None else open_scene(scene, downscale)
-        cameras = path_cameras(around, path, frames)
-        views = [as_numpy(view) for view in self.render(cameras)]
-        near, far = depth_range(around, views)
-        write_views(views, out, near, far)
-        return {"out": str(out), "frames": len(views), "path": path}
+        return render_path(self.render, around, path, frames=frames, out=out)
+
+
+def render_path(
+    render: Renderer, scene: Scene, path: str = "orbit", *, frames: int | None = None,
+    out: str | os.PathLike[str] = "render.gif",
+) -> dict[str, Any]:
+    """Render camera ``path`` around ``scene`` with ``render(cameras) -> views`` into ``out``.
+
+    What :meth:`SceneRun.render_path` does, for anything that renders cameras (a splat file too).
+    """
+    out = Path(out)
+    check_views_output(out)  # before anything is rendered
+    cameras = path_cameras(scene, path, frames)
+    views = [as_numpy(view) for view in render(cameras)]
+    near, far = depth_range(scene, views)
+    write_views(views, out, near, far)
+    return {"out": str(out), "frames": len(views), "path": path}

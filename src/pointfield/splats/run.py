@@ -24,7 +24,7 @@ from pointfield.devices import pick_device
 from pointfield.errors import PointfieldError
 from pointfield.scenes.cameras import Cameras
 from pointfield.scenes.heldout import View, open_scene
-from pointfield.scenes.run import SceneRun
+from pointfield.scenes.run import SceneRun, render_path
 from pointfield.scenes.scene import Scene
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
 from pointfield.splats.gsplat_rasterizer import choose_rasterizer, rasterization_gsplat
@@ -129,14 +129,6 @@ def export(run: str | os.PathLike[str], out: str | os.PathLike[str]) -> dict[str
     return {"out": str(out), "splats": len(gaussians), "sh_degree": gaussians.sh_degree}
 
 
-class _SplatFile(SplatRun):
-    """A splat ``.ply`` rendered like a run, around the cameras of a scene given beside it."""
-
-    def __init__(self, path: Path, gaussians: Gaussians, scene: Scene, device: torch.device, rasterizer: str):
-        super().__init__(RunDirectory(path), {"task": TASK, "model": "splat file"}, gaussians, device, rasterizer)
-        self.scene = scene  # a file has no training scene of its own
-
-
 def render(
     source: str | os.PathLike[str],
     *,
@@ -160,13 +152,18 @@ def render(
     if source.is_dir():
         opened = open_run((SplatRun,), source, device)
         opened.rasterizer = choose_rasterizer(rasterizer, opened.device)
-    else:
-        if scene is None:
-            raise PointfieldError(f"{source}: a splat file has no cameras; pass --scene SCENE to render it")
-        torch_device = pick_device(device)
-        chosen = choose_rasterizer(rasterizer, torch_device)  # before anything is read or written
-        opened = _SplatFile(source, read_splats(source).to(torch_device), open_scene(scene, downscale),
-                            torch_device, chosen)
-        scene = None
-    result = opened.render_path(path, frames=frames, out=out, scene=scene, downscale=downscale)
-    return {**result, "splats": len(opened.gaussians), "rasterizer": opened.rasterizer}
+        result = opened.render_path(path, frames=frames, out=out, scene=scene, downscale=downscale)
+        return {**result, "splats": len(opened.gaussians), "rasterizer": opened.rasterizer}
+    if scene is None:
+        raise PointfieldError(f"{source}: a splat file has no cameras; pass --scene SCENE to render it")
+    torch_device = pick_device(device)
+    chosen = choose_rasterizer(rasterizer, torch_device)  # before anything is read or written
+    gaussians = read_splats(source).to(torch_device)
+    around = open_scene(scene, downscale)
+    background = torch.as_tensor(around.background, dtype=torch.float32, device=torch_device)
+
+    def render_cameras(cameras: Cameras) -> list[View]:
+        return [render_camera(gaussians, cameras, index, background, chosen) for index in range(len(cameras))]
+
+    result = render_path(render_cameras, around, path, frames=frames, out=out)
+    return {**result, "splats": len(gaussians), "rasterizer": chosen}
