@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import torch
 
+from pointfield.scenes.cameras import Cameras
+
 
 @dataclass
 class RayBundle:
@@ -66,6 +68,14 @@ class RayBundle:
     @property
     def device(self) -> torch.device:
         return self.origins.device
+
+    @classmethod
+    def of_camera(cls, cameras: Cameras, index: int, near: float, far: float) -> RayBundle:
+        """Every pixel of camera ``index`` as a ray (row-major, ``H W`` rays), between ``near`` and ``far``."""
+        rays = cameras.rays(index).reshape(-1)
+        count = rays.shape[0]
+        return cls(rays.origins.float(), rays.directions.float(), torch.full((count,), float(near)),
+                   torch.full((count,), float(far)))
 
     @classmethod
     def cat(cls, bundles: list[RayBundle]) -> RayBundle:

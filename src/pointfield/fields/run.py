@@ -9,6 +9,7 @@ rendered without gradients in chunks of :data:`RENDER_CHUNK` rays, at the sample
 from __future__ import annotations
 
 import os
+from functools import cached_property
 from typing import Any
 
 import torch
@@ -19,9 +20,8 @@ from pointfield.fields.field import RadianceField, render_in_chunks
 from pointfield.fields.models import MODELS, build_model
 from pointfield.fields.rays import RayBundle
 from pointfield.scenes.cameras import Cameras
-from pointfield.scenes.heldout import View, ray_bounds
+from pointfield.scenes.heldout import View, depth_bounds
 from pointfield.scenes.run import SceneRun
-from pointfield.scenes.scene import Scene
 from pointfield.training.lifecycle import open_run, restore_model
 from pointfield.training.run import RunDirectory
 
@@ -42,25 +42,13 @@ def build_field(config: dict[str, Any], device: torch.device) -> RadianceField:
         raise PointfieldError(f"model options do not fit model {config['model']!r} ({error})") from None
 
 
-def scene_depth_bounds(scene: Scene) -> tuple[float, float]:
-    """The nearest ``near`` and farthest ``far`` over the scene's cameras: where any camera's rays are marched."""
-    bounds = ray_bounds(scene)
-    return float(bounds[:, 0].min()), float(bounds[:, 1].max())
-
-
 @torch.no_grad()
 def render_field(
     model: nn.Module, cameras: Cameras, index: int, near: float, far: float, background: torch.Tensor,
     chunk: int = RENDER_CHUNK,
 ) -> View:
     """Camera ``index`` rendered by ``model``: ``rgb`` ``(H, W, 3)``, ``depth`` and ``opacity`` ``(H, W)``."""
-    device = background.device
-    rays = cameras.rays(index).reshape(-1)
-    count = rays.shape[0]
-    bundle = RayBundle(
-        rays.origins.float().to(device), rays.directions.float().to(device),
-        torch.full((count,), near, device=device), torch.full((count,), far, device=device),
-    )
+    bundle = RayBundle.of_camera(cameras, index, near, far).to(background.device)
     was_training = model.training
     model.eval()
     out = render_in_chunks(model, bundle, background, chunk=chunk)
@@ -85,9 +73,13 @@ class FieldRun(SceneRun):
         model = restore_model(directory, build_field(config, device), identity_of(config), device)
         return cls(directory, config, model, device)
 
+    @cached_property
+    def depth_bounds(self) -> tuple[float, float]:
+        """Where any camera's rays are marched: the training scene's :func:`~pointfield.scenes.heldout.depth_bounds`."""
+        return depth_bounds(self.scene)
+
     def render_one(self, cameras: Cameras, index: int) -> View:
-        near, far = scene_depth_bounds(self.scene)
-        return render_field(self.module, cameras, index, near, far, self.background)
+        return render_field(self.module, cameras, index, *self.depth_bounds, self.background)
 
 
 def evaluate(run: str | os.PathLike[str], device: str | None = None) -> dict[str, Any]:

@@ -46,12 +46,12 @@ from pointfield.fields.run import (
     build_field,
     identity_of,
     render_field,
-    scene_depth_bounds,
 )
 from pointfield.fields.scene_box import default_max_resolution, scene_bounds
 from pointfield.metrics import psnr_from_mse
 from pointfield.scenes.heldout import (
     HeldoutRender,
+    depth_bounds,
     heldout_scores,
     open_scene_of,
     ray_bounds,
@@ -77,17 +77,9 @@ FINAL_LEARNING_RATE_FRACTION = 0.1
 def scene_rays(scene: Scene, frames: Sequence[int], device: torch.device) -> tuple[RayBundle, torch.Tensor]:
     """Every pixel of ``frames`` as one :class:`RayBundle` on ``device``, and its ``(R, 3)`` colours."""
     bounds = ray_bounds(scene)
-    origins, directions, colors, near, far = [], [], [], [], []
-    for index in frames:
-        rays = scene.cameras.rays(int(index)).reshape(-1)
-        count = rays.shape[0]
-        origins.append(rays.origins.float())
-        directions.append(rays.directions.float())
-        colors.append(torch.from_numpy(scene.image(int(index)).reshape(-1, 3)))
-        near.append(torch.full((count,), float(bounds[index, 0])))
-        far.append(torch.full((count,), float(bounds[index, 1])))
-    bundle = RayBundle(torch.cat(origins), torch.cat(directions), torch.cat(near), torch.cat(far))
-    return bundle.to(device), torch.cat(colors).to(device)
+    bundle = RayBundle.cat([RayBundle.of_camera(scene.cameras, int(i), *bounds[int(i)]) for i in frames])
+    colors = torch.cat([torch.from_numpy(scene.image(int(i)).reshape(-1, 3)) for i in frames])
+    return bundle.to(device), colors.to(device)
 
 
 class NerfTask(Task):
@@ -142,7 +134,7 @@ class NerfTask(Task):
         self.model = self.trained = build_field(config, device)
         self.rays, self.colors = scene_rays(self.scene, self.train_frames, device)
         self.background = torch.as_tensor(self.scene.background, dtype=torch.float32, device=device)
-        self.near, self.far = scene_depth_bounds(self.scene)
+        self.near, self.far = depth_bounds(self.scene)
         self.steps_per_epoch = math.ceil(len(self.rays) / config["batch_rays"])
         self.round_steps = config["eval_every"] or min(self.steps_per_epoch, 500)
         self.epochs = math.ceil(config["steps"] / self.round_steps)

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from pointfield.metrics import mean_psnr, ssim
+from pointfield.metrics import SSIM_WINDOW, mean_psnr, mean_ssim
 from pointfield.scenes.cameras import Cameras
 from pointfield.scenes.formats import read_scene
 from pointfield.scenes.scene import Scene, SceneError
@@ -135,11 +135,16 @@ def ray_bounds(scene: Scene) -> np.ndarray:
     return np.stack([np.maximum(distance - radius, 0.05 * distance), distance + radius], axis=1)
 
 
+def depth_bounds(scene: Scene) -> tuple[float, float]:
+    """The nearest ``near`` and farthest ``far`` of :func:`ray_bounds` over all the scene's cameras."""
+    bounds = ray_bounds(scene)
+    return float(bounds[:, 0].min()), float(bounds[:, 1].max())
+
+
 def depth_range(scene: Scene, views: list[dict[str, np.ndarray]]) -> tuple[float, float]:
-    """Near and far for depth pictures: the scene's bounds, else the rendered depths' 1-99 %."""
+    """Near and far for depth pictures: :func:`depth_bounds`, else the rendered depths' 1-99 %."""
     try:
-        bounds = ray_bounds(scene)
-        return float(bounds[:, 0].min()), float(bounds[:, 1].max())
+        return depth_bounds(scene)
     except SceneError:
         depths = np.concatenate([view["depth"][view["opacity"] > 0.5] for view in views]) if views else []
         if len(depths) == 0:
@@ -167,21 +172,20 @@ def heldout_scores(
     ``renders`` ``[(frame, view arrays, truth)]`` when ``keep_renders`` (else empty). SSIM needs
     views of at least 11 x 11 pixels; smaller ones give NaN.
     """
-    images, truths, similarities, renders = [], [], [], []
+    images, truths, renders = [], [], []
     started = time.perf_counter()
     for frame in frames:
         view = as_numpy(render(scene.cameras[[int(frame)]])[0])
         truth = scene.image(int(frame))
         images.append(view["rgb"])
         truths.append(truth)
-        if min(truth.shape[:2]) >= 11:
-            similarities.append(float(ssim(view["rgb"], truth)))
         if keep_renders:
             renders.append((int(frame), view, truth))
     seconds = time.perf_counter() - started
+    window = [i for i, truth in enumerate(truths) if min(truth.shape[:2]) >= SSIM_WINDOW]
     scores = {
         "psnr": mean_psnr(images, truths),
-        "ssim": float(np.mean(similarities)) if similarities else math.nan,
+        "ssim": mean_ssim([images[i] for i in window], [truths[i] for i in window]) if window else math.nan,
         "views": len(frames),
         "render_seconds_per_view": seconds / max(len(frames), 1),
     }
