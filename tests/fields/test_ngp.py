@@ -17,16 +17,6 @@ from pointfield.fields.train import train
 UNIT_BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
 
-def _rays_at_the_box(count, seed=0):
-    generator = torch.Generator().manual_seed(seed)
-    origins = torch.nn.functional.normalize(torch.randn(count, 3, generator=generator), dim=-1) * 3
-    targets = (torch.rand(count, 3, generator=generator) - 0.5) * 1.6
-    directions = torch.nn.functional.normalize(targets - origins, dim=-1)
-    near = 1.0 + 1.5 * torch.rand(count, generator=generator)  # some rays start inside the box
-    far = near + 0.5 + 3 * torch.rand(count, generator=generator)  # some end inside it
-    return origins, directions, near, far
-
-
 # -- the model -----------------------------------------------------------------------------------------
 
 
@@ -41,9 +31,9 @@ def _opaque_model():
     return model.eval()
 
 
-def test_early_termination_does_not_change_the_render(monkeypatch):
+def test_early_termination_does_not_change_the_render(monkeypatch, rays_at_the_box):
     model = _opaque_model()
-    origins, directions, near, far = _rays_at_the_box(256, seed=3)
+    origins, directions, near, far = rays_at_the_box(256, seed=3)
     rays = RayBundle(origins, directions, near, far + 4)
     background = torch.tensor([0.3, 0.6, 0.9])
     with torch.no_grad():
@@ -58,11 +48,11 @@ def test_early_termination_does_not_change_the_render(monkeypatch):
     torch.testing.assert_close(early.depth[hit], full.depth[hit], atol=1e-3, rtol=1e-3)
 
 
-def test_a_render_reusing_the_probe_pass_equals_one_that_evaluates_the_field_again():
+def test_a_render_reusing_the_probe_pass_equals_one_that_evaluates_the_field_again(rays_at_the_box):
     # Without gradients the kept samples' density and features come from the early-termination
     # probe; with them, the field runs again on those samples. The pixels must not differ.
     model = _opaque_model()
-    origins, directions, near, far = _rays_at_the_box(128, seed=6)
+    origins, directions, near, far = rays_at_the_box(128, seed=6)
     rays = RayBundle(origins, directions, near, far + 4)
     background = torch.tensor([0.3, 0.6, 0.9])
     with torch.no_grad():
@@ -73,10 +63,10 @@ def test_a_render_reusing_the_probe_pass_equals_one_that_evaluates_the_field_aga
         torch.testing.assert_close(getattr(reused, name), getattr(again, name).detach(), atol=1e-5, rtol=1e-5)
 
 
-def test_the_ray_budget_adapts_so_that_a_step_processes_about_the_target_samples():
+def test_the_ray_budget_adapts_so_that_a_step_processes_about_the_target_samples(rays_at_the_box):
     model = _opaque_model().train()
     budget = RayBudget(4096, smallest=16)
-    origins, directions, near, far = _rays_at_the_box(1 << 14, seed=4)
+    origins, directions, near, far = rays_at_the_box(1 << 14, seed=4)
     rays = RayBundle(origins, directions, near, far + 4)
     samples = []
     for _ in range(14):  # the budget is smoothed: it halves its distance to the target per step
@@ -88,11 +78,11 @@ def test_the_ray_budget_adapts_so_that_a_step_processes_about_the_target_samples
     assert all(0.7 * 4096 < count < 1.4 * 4096 for count in samples[-3:]), samples
 
 
-def test_unbounded_interlevel_loss_trains_the_proposal_networks_only():
+def test_unbounded_interlevel_loss_trains_the_proposal_networks_only(rays_at_the_box):
     torch.manual_seed(0)
     model = InstantNGP(UNIT_BOX, unbounded=True, levels=4, log2_table_size=12, max_resolution=64,
                        backend="eager", proposal_samples=(32, 16), field_samples=16).train()
-    origins, directions, _, _ = _rays_at_the_box(64, seed=5)
+    origins, directions, _, _ = rays_at_the_box(64, seed=5)
     rays = RayBundle(origins, directions, torch.full((64,), 0.1), torch.full((64,), 6.0))
     output = model(rays, torch.ones(3), jitter=True)
     auxiliary = output.auxiliary_loss
@@ -183,13 +173,13 @@ def test_unbounded_ngp_trains_a_few_steps_with_a_finite_interlevel_loss(tmp_path
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 @pytest.mark.parametrize("unbounded", [False, True])
-def test_the_fast_field_gives_the_same_renders_and_gradients_on_cuda_as_on_cpu(unbounded):
+def test_the_fast_field_gives_the_same_renders_and_gradients_on_cuda_as_on_cpu(unbounded, rays_at_the_box):
     torch.manual_seed(0)
     model = InstantNGP(UNIT_BOX, unbounded=unbounded, levels=4, log2_table_size=12, min_resolution=4,
                        max_resolution=32, backend="eager")
     with torch.no_grad():  # a field with structure, not the near-constant initial one
         model.field.encoding.table.normal_(0, 0.5)
-    origins, directions, near, far = _rays_at_the_box(256, seed=3)
+    origins, directions, near, far = rays_at_the_box(256, seed=3)
     results = {}
     for device in ("cpu", "cuda"):
         copy = InstantNGP(UNIT_BOX, unbounded=unbounded, levels=4, log2_table_size=12, min_resolution=4,

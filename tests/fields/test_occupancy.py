@@ -13,16 +13,6 @@ from pointfield.fields.sampling.occupancy import OccupancyGrid, march_rays, ray_
 UNIT_BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
 
-def _rays_at_the_box(count, seed=0):
-    generator = torch.Generator().manual_seed(seed)
-    origins = torch.nn.functional.normalize(torch.randn(count, 3, generator=generator), dim=-1) * 3
-    targets = (torch.rand(count, 3, generator=generator) - 0.5) * 1.6
-    directions = torch.nn.functional.normalize(targets - origins, dim=-1)
-    near = 1.0 + 1.5 * torch.rand(count, generator=generator)  # some rays start inside the box
-    far = near + 0.5 + 3 * torch.rand(count, generator=generator)  # some end inside it
-    return origins, directions, near, far
-
-
 # -- boxes and marching --------------------------------------------------------------------------------
 
 
@@ -49,11 +39,11 @@ def _sphere_grid(resolution=8, radius=0.6):
 
 
 @pytest.mark.parametrize("backend", ["eager", "compiled"])
-def test_marching_keeps_exactly_the_steps_in_occupied_cells_within_near_far_and_the_box(backend):
+def test_marching_keeps_exactly_the_steps_in_occupied_cells_within_near_far_and_the_box(backend, rays_at_the_box):
     if backend == "compiled" and not compiler_available(torch.device("cpu")):
         pytest.skip("no C++ compiler here for torch.compile")
     grid = _sphere_grid()
-    origins, directions, near, far = _rays_at_the_box(40)
+    origins, directions, near, far = rays_at_the_box(40)
     step = 0.05
     samples = march_rays(RayBundle(origins, directions, near, far), grid, step, backend=backend)
     enter, leave = ray_box_intersection(origins, directions, grid.box)
@@ -76,9 +66,9 @@ def test_marching_keeps_exactly_the_steps_in_occupied_cells_within_near_far_and_
     assert 0 < len(samples) < sum(math.ceil(max(float(s), 0) / step) for s in (stop - start))
 
 
-def test_marched_samples_are_packed_in_increasing_t_inside_the_bounds():
+def test_marched_samples_are_packed_in_increasing_t_inside_the_bounds(rays_at_the_box):
     grid = _sphere_grid()
-    origins, directions, near, far = _rays_at_the_box(64, seed=1)
+    origins, directions, near, far = rays_at_the_box(64, seed=1)
     rays = RayBundle(origins, directions, near, far)
     samples = march_rays(rays, grid, 0.03, jitter=True, generator=torch.Generator().manual_seed(2))
     indices = samples.ray_indices
