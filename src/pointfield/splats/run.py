@@ -17,7 +17,6 @@ import os
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
 from pointfield.devices import pick_device
@@ -25,7 +24,6 @@ from pointfield.errors import PointfieldError
 from pointfield.scenes.cameras import Cameras
 from pointfield.scenes.heldout import View, open_scene
 from pointfield.scenes.run import SceneRun, render_path
-from pointfield.scenes.scene import Scene
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
 from pointfield.splats.gsplat_rasterizer import choose_rasterizer, rasterization_gsplat
 from pointfield.splats.ply import read_splats, write_splats
@@ -80,12 +78,6 @@ def render_camera(
         "depth": depths[0] / alphas[0].clamp_min(1e-6),
         "opacity": alphas[0].clamp(0, 1),
     }
-
-
-def scene_scale(scene: Scene) -> float:
-    """1.1 x the largest distance of a camera centre from their mean (the 3DGS "extent")."""
-    centres = scene.cameras.centers.double().numpy()
-    return 1.1 * float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) or 1.0
 
 
 class SplatRun(SceneRun):

@@ -55,7 +55,6 @@ from pointfield.splats.run import (
     camera_matrices,
     render_camera,
     render_views,
-    scene_scale,
 )
 from pointfield.training import lifecycle
 from pointfield.training.loop import TrainingState
@@ -78,6 +77,12 @@ LEARNING_RATES = {
     "sh_rest": 2.5e-3 / 20,
 }
 FINAL_MEANS_LEARNING_RATE_FRACTION = 0.01
+
+
+def scene_scale(scene: Scene) -> float:
+    """1.1 x the largest distance of a camera centre from their mean (the 3DGS "extent")."""
+    centres = scene.cameras.centers.double().numpy()
+    return 1.1 * float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) or 1.0
 
 
 def initial_gaussians(scene: Scene, count: int, seed: int) -> Gaussians:
