@@ -74,12 +74,12 @@ class FieldRun(SceneRun):
         return cls(directory, config, model, device)
 
     @cached_property
-    def depth_bounds(self) -> tuple[float, float]:
+    def marched_between(self) -> tuple[float, float]:
         """Where any camera's rays are marched: the training scene's :func:`~pointfield.scenes.heldout.depth_bounds`."""
         return depth_bounds(self.scene)
 
     def render_one(self, cameras: Cameras, index: int) -> View:
-        return render_field(self.module, cameras, index, *self.depth_bounds, self.background)
+        return render_field(self.module, cameras, index, *self.marched_between, self.background)
 
 
 def evaluate(run: str | os.PathLike[str], device: str | None = None) -> dict[str, Any]:
