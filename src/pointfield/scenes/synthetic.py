@@ -11,6 +11,9 @@ Scenes (world z is up; units are arbitrary, the cube's side is 1):
   transparent background.
 - ``"spheres"``: red, green and blue spheres resting on a checkered ground square.
 - ``"still-life"``: the cube resting on the checkered ground between two spheres.
+- ``"textured"``: the still life with every surface painted in random-colour cells of four
+  sizes (:class:`CellTexture`), so that feature detectors find corners everywhere: the scene
+  that structure from motion (``scene from-images``) can pose.
 
 Rendering: one ray per pixel through its centre (:meth:`Cameras.rays`), nearest analytic hit
 (slab test for the box, quadratic for spheres, plane for the ground), Lambertian shading
@@ -73,6 +76,47 @@ class Hit:
     albedo: torch.Tensor
 
 
+@dataclass(frozen=True)
+class CellTexture:
+    """A solid texture: the mean of random colours of cubic cells of several sizes, times a strength.
+
+    For a surface point ``p``: ``albedo * (1 - strength + strength * mean_k c(floor(p / s_k + o)))``
+    with ``s_k`` the cell sizes, ``o`` an offset that keeps cell borders off the scene's planes,
+    and ``c`` a colour in [0, 1]^3 hashed from the integer cell and k. Defined in 3D, it is the
+    same on a surface from every view; nearest-cell colours give the sharp corners SIFT finds.
+    """
+
+    cell_sizes: tuple[float, ...] = (0.25, 0.125, 0.0625, 0.03125)
+    strength: float = 0.8
+    seed: int = 0
+
+    def __call__(self, points: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
+        colours = torch.zeros_like(points)
+        for octave, size in enumerate(self.cell_sizes):
+            cells = torch.floor(points.nan_to_num(0, 0, 0) / size + 0.371).long()
+            colours += _hash_colours(cells, octave + 16 * self.seed)
+        return albedo * (1 - self.strength + self.strength * colours / len(self.cell_sizes))
+
+
+def _hash_colours(cells: torch.Tensor, salt: int) -> torch.Tensor:
+    """``(R, 3)`` integer cells -> ``(R, 3)`` colours in [0, 1): an integer hash, no global RNG."""
+    primes = torch.tensor([73856093, 19349663, 83492791], dtype=torch.int64)
+    mixed = (cells * primes).sum(-1, keepdim=True) + salt * 2654435761
+    channels = mixed + torch.arange(3, dtype=torch.int64) * 1013904223
+    for shift in (13, 17, 5):
+        # xorshift-multiply rounds; int64 products wrap, the same on every machine.
+        channels = (channels ^ (channels >> shift)) * 0x5BD1E995
+    return (channels & 0xFFFF).to(torch.float64) / 65536.0
+
+
+def _painted(hit: Hit, texture: CellTexture | None, origins: torch.Tensor, directions: torch.Tensor) -> Hit:
+    """``hit`` with its albedo multiplied by ``texture`` at the hit points (unchanged without one)."""
+    if texture is None:
+        return hit
+    points = origins + hit.distance.nan_to_num(posinf=0)[:, None] * directions
+    return Hit(hit.distance, hit.normal, texture(points, hit.albedo).to(hit.albedo.dtype))
+
+
 @dataclass
 class Box:
     """Axis-aligned box with one colour per face, in the order +x, -x, +y, -y, +z, -z."""
@@ -80,6 +124,7 @@ class Box:
     center: tuple[float, float, float]
     half_size: float
     face_colors: tuple[tuple[float, float, float], ...]
+    texture: CellTexture | None = None
 
     def intersect(self, origins: torch.Tensor, directions: torch.Tensor) -> Hit:
         """Slab test: t_enter = max over axes of min(t0, t1), t_exit = min of max; hit if t_enter <= t_exit."""
@@ -98,7 +143,7 @@ class Box:
         normal.scatter_(-1, axis[:, None], sign[:, None])
         face = 2 * axis + (sign < 0).long()
         albedo = torch.tensor(self.face_colors, dtype=origins.dtype)[face]
-        return Hit(distance, normal, albedo)
+        return _painted(Hit(distance, normal, albedo), self.texture, origins, directions)
 
 
 @dataclass
@@ -106,6 +151,7 @@ class Sphere:
     center: tuple[float, float, float]
     radius: float
     color: tuple[float, float, float]
+    texture: CellTexture | None = None
 
     def intersect(self, origins: torch.Tensor, directions: torch.Tensor) -> Hit:
         """Nearest t > 0 of |o + t d - c|^2 = r^2 for unit d: t = -b -+ sqrt(b^2 - (|o - c|^2 - r^2))."""
@@ -121,7 +167,7 @@ class Sphere:
             offset + distance.nan_to_num(posinf=0)[:, None] * directions, dim=-1
         )
         albedo = torch.tensor(self.color, dtype=origins.dtype).expand_as(origins)
-        return Hit(distance, normal, albedo)
+        return _painted(Hit(distance, normal, albedo), self.texture, origins, directions)
 
 
 @dataclass
@@ -135,6 +181,7 @@ class CheckeredGround:
         (0.85, 0.85, 0.85),
         (0.35, 0.35, 0.38),
     )
+    texture: CellTexture | None = None
 
     def intersect(self, origins: torch.Tensor, directions: torch.Tensor) -> Hit:
         dz = directions[:, 2]
@@ -149,7 +196,7 @@ class CheckeredGround:
         parity = (torch.floor(points[:, 0] / self.tile) + torch.floor(points[:, 1] / self.tile)).remainder(2)
         palette = torch.tensor(self.colors, dtype=origins.dtype)
         albedo = palette[parity.nan_to_num(0).long().clamp(0, 1)]
-        return Hit(distance, normal, albedo)
+        return _painted(Hit(distance, normal, albedo), self.texture, origins, directions)
 
 
 @dataclass
@@ -211,10 +258,29 @@ def _still_life() -> SyntheticScene:
     )
 
 
+def _textured() -> SyntheticScene:
+    pale_faces = tuple(tuple(0.55 + 0.45 * c for c in face) for face in CUBE_FACE_COLORS)
+    return SyntheticScene(
+        objects=[
+            Box((0.0, 0.0, 0.0), 0.5, pale_faces, CellTexture(seed=1)),
+            Sphere((-1.1, 0.4, -0.2), 0.3, (0.95, 0.7, 0.4), CellTexture(seed=2)),
+            Sphere((1.0, 0.6, -0.1), 0.4, (0.75, 0.8, 0.95), CellTexture(seed=3)),
+            CheckeredGround(z=-0.5, half_size=2.0, tile=0.5, colors=((0.95, 0.95, 0.9), (0.7, 0.7, 0.75)),
+                            texture=CellTexture(seed=4)),
+        ],
+        lights=[((0.4, -0.6, 1.0), 0.6), ((-0.5, 0.7, 0.4), 0.2)],
+        ambient=0.3,
+        bounding_radius=2.0 * math.sqrt(2),
+        aabb=((-2.0, -2.0, -0.5), (2.0, 2.0, 0.5)),
+        layout="hemisphere",
+    )
+
+
 SYNTHETIC_SCENES: dict[str, Callable[[], SyntheticScene]] = {
     "cube": _cube,
     "spheres": _spheres,
     "still-life": _still_life,
+    "textured": _textured,
 }
 """Name -> builder of each synthetic scene."""
 
