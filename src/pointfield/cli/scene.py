@@ -1,8 +1,9 @@
-"""``pointfield scene info|convert|cameras|make``: posed-image datasets.
+"""``pointfield scene info|convert|cameras|make|from-images|from-video``: posed-image datasets.
 
 Each subcommand calls the function of the same name and arguments in :mod:`pointfield.scenes`
-(``scene_info``, ``convert_scene``, ``plot_cameras``, ``make_scene``). The scenes package (and
-torch with it) is imported only when a scene command runs, so other commands start fast.
+(``scene_info``, ``convert_scene``, ``plot_cameras``, ``make_scene``, ``pose_images``,
+``pose_video``). The scenes package (and torch with it) is imported only when a scene command
+runs, so other commands start fast.
 """
 
 from __future__ import annotations
@@ -16,7 +17,11 @@ from typing import Any
 
 SCENE_FORMATS = ("blender", "nerfstudio", "llff", "colmap", "npz")
 WRITABLE_FORMATS = ("nerfstudio", "blender")
-SYNTHETIC_NAMES = ("cube", "spheres", "still-life")
+SYNTHETIC_NAMES = ("cube", "spheres", "still-life", "textured")
+# Mirrors of pointfield.scenes.sfm.pipeline's choices, so that --help needs no pycolmap import.
+MATCHING = ("auto", "exhaustive", "retrieval", "sequential")
+MAPPERS = ("global", "incremental")
+SFM_CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 LAYOUTS = ("sphere", "hemisphere", "ring")
 
 
@@ -68,7 +73,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     make = verbs.add_parser(
         "make", help="render a synthetic scene to a Blender-format dataset with depth and masks"
     )
-    make.add_argument("name", choices=SYNTHETIC_NAMES, help="which scene (cube: the lesson's coloured cube)")
+    make.add_argument("name", choices=SYNTHETIC_NAMES, help="which scene (cube: the lesson's coloured cube; textured: one that structure from motion can pose)")
     make.add_argument("--out", required=True, help="folder to write")
     make.add_argument("--views", type=int, default=100, help="number of views (default: 100)")
     make.add_argument("--size", type=int, default=100, help="image width and height in pixels (default: 100)")
@@ -80,6 +85,99 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     make.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     make.set_defaults(run=_run_make)
+
+    from_images = verbs.add_parser(
+        "from-images",
+        help="pose your own photos by structure from motion (pycolmap, CPU) into a scene",
+        description="Find camera poses for a folder of photos (SIFT features, matching, COLMAP "
+        "mapping), undistort them and write a scene that `nerf train` and `splat train` take as "
+        "it is: transforms.json, colmap/sparse/0, points3D.ply, images_2/4/8, report.json, "
+        "cameras.png. A killed run restarts from its last finished stage.",
+    )
+    from_images.add_argument("photos", nargs="+", help="a folder of photos, or photo files")
+    _posing_options(from_images)
+    from_images.set_defaults(run=_run_from_images)
+
+    from_video = verbs.add_parser(
+        "from-video",
+        help="pose the sharpest frames of a video by structure from motion into a scene",
+        description="Pick the sharpest frame of each stretch of a video (variance of the "
+        "Laplacian), then pose them as `scene from-images` does (sequential matching with "
+        "retrieval to close loops).",
+    )
+    from_video.add_argument("clip", help="video file (anything ffmpeg decodes)")
+    from_video.add_argument("--frames", type=int, default=150, help="frames to pose (default: 150)")
+    _posing_options(from_video)
+    from_video.set_defaults(run=_run_from_video)
+
+
+def _posing_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", required=True, help="scene folder to write (must not exist unless --overwrite)")
+    parser.add_argument(
+        "--max-size", type=int, default=800, help="longer image side for features, pixels (default: 800)"
+    )
+    parser.add_argument("--features", type=int, default=8192, help="SIFT features per image at most (default: 8192)")
+    parser.add_argument(
+        "--matching",
+        choices=MATCHING,
+        default="auto",
+        help="image pairs to match (default: auto -- exhaustive up to 30 photos, retrieval above, "
+        "sequential plus retrieval for video)",
+    )
+    parser.add_argument(
+        "--neighbours", type=int, default=10, help="retrieval partners per image (default: 10)"
+    )
+    parser.add_argument(
+        "--mapper", choices=MAPPERS, default="global", help="global (GLOMAP) or incremental (default: global)"
+    )
+    parser.add_argument(
+        "--camera-model", choices=SFM_CAMERA_MODELS, default="SIMPLE_RADIAL", help="default: SIMPLE_RADIAL"
+    )
+    parser.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _posing_settings(args: argparse.Namespace):
+    from pointfield.scenes.sfm import PosingOptions
+
+    return PosingOptions(
+        max_size=args.max_size,
+        features=args.features,
+        matching=args.matching,
+        neighbours=args.neighbours,
+        mapper=args.mapper,
+        camera_model=args.camera_model,
+    )
+
+
+def _run_from_images(args: argparse.Namespace) -> int:
+    from pointfield.scenes.sfm import pose_images
+
+    photos = args.photos[0] if len(args.photos) == 1 else args.photos
+    report = _with_warnings_printed(
+        lambda: pose_images(
+            photos, args.out, options=_posing_settings(args), overwrite=args.overwrite, progress=not args.quiet
+        )
+    )
+    print(report.format())
+    return 0
+
+
+def _run_from_video(args: argparse.Namespace) -> int:
+    from pointfield.scenes.sfm import pose_video
+
+    report = _with_warnings_printed(
+        lambda: pose_video(
+            args.clip,
+            args.out,
+            frames=args.frames,
+            options=_posing_settings(args),
+            overwrite=args.overwrite,
+            progress=not args.quiet,
+        )
+    )
+    print(report.format())
+    return 0
 
 
 def _reading_options(parser: argparse.ArgumentParser) -> None:

@@ -61,9 +61,22 @@ def nearest_rotation(matrix: np.ndarray) -> np.ndarray:
 
 
 def rotation_angle_degrees(rotations: np.ndarray) -> np.ndarray:
-    """Angles of rotations ``(N, 3, 3)`` in degrees, from the trace, clipped against rounding."""
+    """Angles of rotations ``(N, 3, 3)`` in degrees: ``atan2(sin, cos)``, exact near 0 and 180.
+
+    ``cos = (trace - 1) / 2``; ``sin = |v| / 2`` with ``v`` the skew part
+    ``(R32 - R23, R13 - R31, R21 - R12)``. (``arccos`` of the trace alone loses the small angles
+    that pose errors are made of to rounding.)
+    """
     cosine = (np.trace(rotations, axis1=-2, axis2=-1) - 1) / 2
-    return np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
+    skew = np.stack(
+        [
+            rotations[..., 2, 1] - rotations[..., 1, 2],
+            rotations[..., 0, 2] - rotations[..., 2, 0],
+            rotations[..., 1, 0] - rotations[..., 0, 1],
+        ],
+        axis=-1,
+    )
+    return np.degrees(np.arctan2(np.linalg.norm(skew, axis=-1) / 2, cosine))
 
 
 def pose_errors(found, given) -> PoseErrors:
