@@ -138,6 +138,17 @@ def test_a_colmap_scene_initialises_from_its_sparse_points(shared_data):
     gaussians = initial_gaussians(scene, 1000, seed=0)
     assert len(gaussians) == len(scene.points.points) == 256
     np.testing.assert_allclose(gaussians.means.detach().numpy(), scene.points.points, rtol=1e-6)
+    # --init random ignores the points (the start the SfM benchmark compares against)
+    assert len(initial_gaussians(scene, 1000, seed=0, init="random")) == 1000
+
+
+def test_init_points_without_points_is_a_clear_error():
+    from pointfield.errors import PointfieldError
+    from pointfield.scenes import synthetic_scene
+    from pointfield.splats.train import initial_gaussians
+
+    with pytest.raises(PointfieldError, match="needs a scene with sparse points"):
+        initial_gaussians(synthetic_scene("cube", views=3, size=8), 10, seed=0, init="points")
 
 
 def test_a_scene_without_points_or_box_starts_at_random_around_its_cameras(tmp_path):

@@ -39,6 +39,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                        help=f"densification never grows beyond this many splats (default {DEFAULT_MAX_SPLATS:,})")
     train.add_argument("--initial-splats", type=int, default=20_000,
                        help="random splats to start from when the scene has no sparse points (default 20,000)")
+    train.add_argument("--init", choices=("auto", "points", "random"), default="auto",
+                       help="start from the scene's sparse points (auto: when it has them) or at random")
     train.add_argument("--eval-every", type=int, metavar="STEPS", help="score held-out views every STEPS steps (default 250)")
     train.add_argument("--device", help=DEVICE_HELP)
     train.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -82,7 +84,7 @@ def run_train(args: argparse.Namespace) -> int:
         args.scene, out=args.out, steps=args.steps, max_time=args.max_time, downscale=args.downscale,
         holdout_every=args.holdout_every, background=background, device=args.device, seed=args.seed,
         resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,
-        eval_every=args.eval_every, progress=args.progress,
+        init=args.init, eval_every=args.eval_every, progress=args.progress,
     )
     print(f"splat run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
           f"{metrics['splats']:,} splats ({metrics['steps']} steps, {metrics['seconds']:.0f} s); "

@@ -8,8 +8,8 @@ Example::
     export("runs/lego-splats", "lego.ply")       # opens in any splat viewer
 
 The recipe is the 3D Gaussian splatting paper's, scaled to short runs: splats start at the
-scene's sparse points (COLMAP), else at random in its bounding box (``initial_splats`` of
-them); each step renders one training view (a seeded shuffle of the views per pass) and
+scene's sparse points (COLMAP, ``scene from-images``), else at random in its bounding box
+(``initial_splats`` of them; ``init="random"`` chooses this even where points exist); each step renders one training view (a seeded shuffle of the views per pass) and
 minimises ``0.8 L1 + 0.2 (1 - SSIM)`` (:mod:`pointfield.splats.loss`) with Adam, one learning
 rate per parameter (gsplat's: means ``1.6e-4 x scene scale`` decayed exponentially to a
 hundredth, scales ``5e-3``, rotations ``1e-3``, opacities ``5e-2``, SH ``2.5e-3`` and a
@@ -85,14 +85,22 @@ def scene_scale(scene: Scene) -> float:
     return 1.1 * float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) or 1.0
 
 
-def initial_gaussians(scene: Scene, count: int, seed: int) -> Gaussians:
-    """Splats from the scene's sparse points; else ``count`` at random in its box.
+INITS = ("auto", "points", "random")
+
+
+def initial_gaussians(scene: Scene, count: int, seed: int, init: str = "auto") -> Gaussians:
+    """Splats from the scene's sparse points; else (or with ``init="random"``) ``count`` at random in its box.
+
+    ``init``: "auto" (points when the scene has them), "points" (an error without them) or "random".
 
     The box is the scene's ``aabb``; without one (Blender scenes), a cube around the point
     every camera looks at, of half-width a third of the mean camera distance to it (lego's
     cameras at radius 4 give the usual [-1.3, 1.3]^3).
     """
-    if scene.points is not None and len(scene.points.points):
+    has_points = scene.points is not None and len(scene.points.points) > 0
+    if init == "points" and not has_points:
+        raise PointfieldError("splat init 'points' needs a scene with sparse points (COLMAP, scene from-images)")
+    if has_points and init != "random":
         colors = scene.points.fields.get("colors")
         return Gaussians.from_points(np.asarray(scene.points.points, np.float64), colors)
     if scene.aabb is not None:
@@ -123,19 +131,22 @@ class SplatTask(Task):
             "steps": int(settings["steps"] if settings["steps"] is not None else DEFAULT_STEPS),
             "max_splats": int(settings["max_splats"] if settings["max_splats"] is not None else DEFAULT_MAX_SPLATS),
             "initial_splats": int(settings["initial_splats"]),
+            "init": settings.get("init") or "auto",
             "seed": int(settings["seed"]),
             "eval_every": int(settings["eval_every"] or 250),
             "eval_views": int(settings["eval_views"]),
         }
         if min(config["steps"], config["max_splats"], config["initial_splats"], config["eval_every"]) < 1:
             raise PointfieldError("--steps, --max-splats and --eval-every must be positive")
+        if config["init"] not in INITS:
+            raise PointfieldError(f"--init must be one of {', '.join(INITS)}, got {config['init']!r}")
         return config
 
     def __init__(self, config, device, distributed, progress):
         super().__init__(config, device, distributed, progress)
         self.scene = open_scene_of(config)
         self.train_frames, self.heldout_frames = training_and_heldout(self.scene)
-        gaussians = initial_gaussians(self.scene, config["initial_splats"], config["seed"])
+        gaussians = initial_gaussians(self.scene, config["initial_splats"], config["seed"], config.get("init", "auto"))
         if len(gaussians) > config["max_splats"]:
             raise PointfieldError(
                 f"the scene starts with {len(gaussians):,} splats, more than --max-splats "
@@ -231,6 +242,7 @@ def train(
     resume: bool = False,
     max_splats: int | None = None,
     initial_splats: int = DEFAULT_INITIAL_SPLATS,
+    init: str = "auto",
     eval_every: int | None = None,
     eval_views: int = 3,
     progress: bool = True,
@@ -248,6 +260,7 @@ def train(
     settings = {
         "scene": scene, "steps": steps, "downscale": downscale, "holdout_every": holdout_every,
         "background": background, "seed": seed, "max_splats": max_splats, "initial_splats": initial_splats,
+        "init": init,
         "eval_every": eval_every, "eval_views": eval_views, "cube_views": cube_views, "cube_size": cube_size,
     }
     return lifecycle.train(SplatTask, settings, out=out, resume=resume, device=device, max_time=max_time,

@@ -426,13 +426,13 @@ def _all_frame_names(document: dict[str, Any]) -> list[str]:
     ]
 
 
-def write_nerfstudio(scene: Scene, directory: Path) -> None:
+def write_nerfstudio(scene: Scene, directory: Path, points_file: str = "sparse_pc.ply") -> None:
     """Write ``scene`` as ``transforms.json`` plus its images, readable by nerfstudio and instant-ngp.
 
     Images keep their path relative to the source dataset's folder (copied unchanged unless
     downscaled); intrinsics go at the top level when every camera shares them, else in each
     frame; splits other than a single all-frames "train" become ``<split>_filenames`` lists;
-    sparse points are written to ``sparse_pc.ply``.
+    sparse points are written to ``points_file`` (nerfstudio's ``sparse_pc.ply`` by default).
     """
     cameras = scene.cameras
     document: dict[str, Any] = {"camera_model": cameras.model}
@@ -469,8 +469,8 @@ def write_nerfstudio(scene: Scene, directory: Path) -> None:
             if name in SPLIT_NAMES:
                 document[f"{name}_filenames"] = [relative_images[i] for i in indices]
     if scene.points is not None:
-        write(directory / "sparse_pc.ply", scene.points)
-        document["ply_file_path"] = "sparse_pc.ply"
+        write(directory / points_file, scene.points)
+        document["ply_file_path"] = points_file
     write_json(directory / "transforms.json", document)
 
 
