@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego clean
+.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,9 +27,15 @@ $(BIN)/.open3d: $(BIN)/.installed
 	$(BIN)/python -c "import open3d"
 	touch $@
 
+# The SfM benchmark's peer: the COLMAP command line that nerfstudio's ns-process-data runs (Debian's package).
+$(BIN)/.colmap: $(BIN)/.installed
+	command -v colmap >/dev/null || (apt-get update -qq && apt-get install -y -qq colmap >/dev/null)
+	colmap help >/dev/null
+	touch $@
+
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat
+bench: bench-formats bench-fuzz bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -58,6 +64,9 @@ bench-hashgrid: $(BIN)/.installed
 
 bench-march: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_march.py
+
+bench-sfm: $(BIN)/.colmap
+	$(BIN)/python benchmarks/bench_sfm.py --training
 
 # TinyNeRF, the hash-grid field and splats on lego in one run (about 45 minutes on 2 cores).
 bench-lego: $(BIN)/.installed
