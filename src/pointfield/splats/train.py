@@ -165,7 +165,8 @@ class SplatTask(Task):
             refine_start=min(500, total // 10), refine_stop=max(total // 2, 1),
             sh_degree_interval=max(min(1000, total // 4), 1),
         )
-        self.height, self.width = int(self.scene.cameras.height[0]), int(self.scene.cameras.width[0])
+        # Each view renders at its own size: a posed photo set may hold several (one camera per size).
+        self.sizes = [(int(w), int(h)) for w, h in zip(self.scene.cameras.width, self.scene.cameras.height)]
         self.viewmats, self.Ks = camera_matrices(self.scene.cameras, device)
         self.images = {int(i): torch.from_numpy(self.scene.image(int(i))).to(device) for i in self.train_frames}
         self.background = torch.as_tensor(self.scene.background, dtype=torch.float32, device=device)
@@ -173,11 +174,12 @@ class SplatTask(Task):
         self.evaluated = self.heldout_frames[: max(1, config["eval_views"])]
         self.identity = {"task": TASK, "sh_degree": gaussians.sh_degree}
         self.last_meta: dict[str, torch.Tensor] | None = None  # the previous step's, for densification
+        self.last_size = self.sizes[0]  # and the (width, height) it was rendered at
 
     def warm_up(self) -> None:
         # The rasterizer's compiled kernels are built on first use (seconds): here, before the clock.
         with torch.no_grad():
-            render_views(self.model, self.viewmats[:1], self.Ks[:1], self.width, self.height, self.background)
+            render_views(self.model, self.viewmats[:1], self.Ks[:1], *self.sizes[0], self.background)
 
     def render(self, cameras) -> list[dict[str, torch.Tensor]]:
         return [render_camera(self.model, cameras, index, self.background) for index in range(len(cameras))]
@@ -198,15 +200,15 @@ class SplatTask(Task):
         # The previous step's gradients are complete and applied: densify before rendering.
         # (A resumed run restarts the statistics gathered since the last refinement.)
         if self.last_meta is not None:
-            self.strategy.after_backward(gaussians, self.optimizer, self.last_meta, done, self.width, self.height)
+            self.strategy.after_backward(gaussians, self.optimizer, self.last_meta, done, *self.last_size)
         gaussians.active_sh_degree = self.strategy.sh_degree_at(done, gaussians.sh_degree)
         self.optimizer.param_groups[0]["lr"] = (
             self.means_learning_rate * FINAL_MEANS_LEARNING_RATE_FRACTION ** (done / self.config["steps"])
         )
-        colors, _, _, meta = render_views(gaussians, self.viewmats[[view]], self.Ks[[view]], self.width,
-                                          self.height, self.background)
+        colors, _, _, meta = render_views(gaussians, self.viewmats[[view]], self.Ks[[view]], *self.sizes[view],
+                                          self.background)
         meta["means2d"].retain_grad()
-        self.last_meta = meta
+        self.last_meta, self.last_size = meta, self.sizes[view]
         rendered = colors[0]
         mse = float(torch.mean((rendered.detach().clamp(0, 1) - self.images[view]) ** 2))
         return Step(splat_loss(rendered, self.images[view]),

@@ -199,3 +199,21 @@ def test_bad_options_are_refused_before_any_work():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         pipeline.PosingOptions()
+
+
+def test_nerf_training_takes_the_posed_scene_as_it_is(posed_scene, tmp_path):
+    from pointfield.fields.train import train
+
+    metrics = train(posed_scene, model="tiny", out=tmp_path / "run", steps=2, eval_every=2, downscale=4,
+                    holdout_every=4, progress=False)
+    assert np.isfinite(metrics["psnr"])
+
+
+def test_splat_training_takes_the_posed_scene_as_it_is_and_starts_from_its_points(posed_scene, tmp_path):
+    from pointfield.splats.train import train
+
+    metrics = train(posed_scene, out=tmp_path / "run", steps=2, eval_every=2, eval_views=1, downscale=4,
+                    holdout_every=4, progress=False)
+    points = json.loads((posed_scene / "report.json").read_text())["points"]
+    assert metrics["splats"] == points  # no densification in two steps: one splat per SfM point
+    assert np.isfinite(metrics["psnr"])
