@@ -1,4 +1,4 @@
-"""``pointfield nerf train|eval|render|exercise``: neural radiance fields (TinyNeRF, NeRF).
+"""``pointfield nerf train|eval|render|export|exercise``: neural radiance fields (TinyNeRF, NeRF).
 
 Each subcommand calls the Python function of the same name and arguments:
 :func:`pointfield.fields.train.train`, :func:`pointfield.fields.run.evaluate`,
@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+
+from pointfield.cli.geometry_options import add_cloud_options, export_cloud_of
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
 
@@ -74,6 +76,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     render.add_argument("--device", help=DEVICE_HELP)
     render.set_defaults(run=run_render)
 
+    export = verbs.add_parser(
+        "export", help="geometry from a trained run: a point cloud of rendered depth",
+        description="Render the run from the training views (or an orbit) and back-project every "
+        "pixel opaque enough into a point with its colour and normal; crop, drop stray points, thin, "
+        "and write any point-cloud format.",
+    )
+    export.add_argument("run_dir", type=Path, metavar="RUN", help="a run folder from nerf train")
+    add_cloud_options(export)
+    export.set_defaults(run=run_export)
+
     exercise = verbs.add_parser(
         "exercise", help="the lesson's exercise: TinyNeRF on the cube, as DIR/REPORT.md",
         description="Train TinyNeRF on the synthetic cube for 100 epochs (about 10 minutes on a "
@@ -115,6 +127,15 @@ def run_eval(args: argparse.Namespace) -> int:
     else:
         print(f"{metrics['views']} held-out views: PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f} "
               f"({metrics['render_seconds_per_view']:.2f} s per view)")
+    return 0
+
+
+def run_export(args: argparse.Namespace) -> int:
+    from pointfield.errors import PointfieldError
+
+    if args.cloud is None:
+        raise PointfieldError("nerf export needs --cloud OUT")
+    export_cloud_of(args)
     return 0
 
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from pointfield.cli.geometry_options import add_cloud_options, export_cloud_of
+
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
 DEFAULT_MAX_SPLATS = 200_000  # pointfield.splats.train.DEFAULT_MAX_SPLATS, without importing torch
 
@@ -68,9 +70,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                              "can run (default)")
     render.set_defaults(run=run_render)
 
-    export = verbs.add_parser("export", help="write a run's splats as a standard splat .ply")
+    export = verbs.add_parser(
+        "export", help="write a run's splats as a standard splat .ply, its centres, or a point cloud of rendered depth"
+    )
     export.add_argument("run_dir", type=Path, metavar="RUN", help="a run folder from splat train")
-    export.add_argument("--out", type=Path, required=True, help="the .ply to write")
+    export.add_argument("--out", type=Path, help="the splat .ply to write (the standard 3DGS layout)")
+    export.add_argument("--centres", type=Path, metavar="OUT",
+                        help="write the splats' centres as a cloud, coloured by their SH degree-0 colour")
+    add_cloud_options(export)
     export.set_defaults(run=run_export)
 
 
@@ -103,8 +110,17 @@ def run_render(args: argparse.Namespace) -> int:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    from pointfield.splats.run import export
+    from pointfield.errors import PointfieldError
+    from pointfield.splats.run import export, export_centres
 
-    result = export(args.run_dir, args.out)
-    print(f"wrote {result['splats']:,} splats (SH degree {result['sh_degree']}) to {result['out']}")
+    if args.out is None and args.centres is None and args.cloud is None:
+        raise PointfieldError("splat export needs --out (splats), --centres or --cloud")
+    if args.out is not None:
+        result = export(args.run_dir, args.out)
+        print(f"wrote {result['splats']:,} splats (SH degree {result['sh_degree']}) to {result['out']}")
+    if args.centres is not None:
+        result = export_centres(args.run_dir, args.centres)
+        print(f"wrote {result['points']:,} splat centres to {result['out']}")
+    if args.cloud is not None:
+        export_cloud_of(args)
     return 0

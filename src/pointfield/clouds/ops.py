@@ -200,6 +200,24 @@ def voxel_downsample(cloud: PointCloud | np.ndarray, voxel_size: float) -> Point
     return PointCloud(centroids, fields, None, dict(source.metadata))
 
 
+def statistical_inliers(points: np.ndarray, neighbours: int = 16, std_ratio: float = 2.0) -> np.ndarray:
+    """``(N,)`` bool: the points whose mean distance to their ``neighbours`` nearest is not unusual.
+
+    Open3D's ``remove_statistical_outlier``: with ``d_i`` the mean distance from point i to its
+    k nearest other points (a k-d tree, scipy), point i is kept when ``d_i <= mean(d) + std_ratio
+    * std(d)``. Stray points in empty space (floaters of a rendered depth map) have large ``d_i``.
+    Fewer than ``neighbours + 1`` points are all kept.
+    """
+    from scipy.spatial import cKDTree
+
+    points = np.asarray(points, np.float64)
+    if len(points) <= neighbours:
+        return np.ones(len(points), bool)
+    distances, _ = cKDTree(points).query(points, k=neighbours + 1, workers=-1)
+    mean_distance = distances[:, 1:].mean(axis=1)  # column 0 is the point itself
+    return mean_distance <= mean_distance.mean() + std_ratio * mean_distance.std()
+
+
 def estimate_normals(
     points: np.ndarray, neighbours: int = 16, viewpoint: np.ndarray | None = None
 ) -> np.ndarray:

@@ -121,6 +121,26 @@ def export(run: str | os.PathLike[str], out: str | os.PathLike[str]) -> dict[str
     return {"out": str(out), "splats": len(gaussians), "sh_degree": gaussians.sh_degree}
 
 
+def export_centres(run: str | os.PathLike[str], out: str | os.PathLike[str]) -> dict[str, Any]:
+    """Write a trained run's splat centres as a point cloud: colour from SH degree 0, and opacity.
+
+    The degree-0 colour is the view-independent part: ``rgb = 0.5 + C0 * sh_dc``, clipped to [0, 1].
+    """
+    from pointfield.clouds.cloud import PointCloud
+    from pointfield.clouds.formats.registry import write
+    from pointfield.fields.encodings.spherical_harmonics import C0
+
+    gaussians = open_run((SplatRun,), run, "cpu").gaussians
+    with torch.no_grad():
+        rgb = (0.5 + C0 * gaussians.sh_dc[:, 0, :]).clamp(0, 1)
+        cloud = PointCloud(
+            gaussians.means.double().numpy(),
+            {"colors": (rgb * 255).round().to(torch.uint8).numpy(), "opacity": gaussians.opacities.float().numpy()},
+        )
+    write(out, cloud)
+    return {"out": str(out), "points": len(cloud.points)}
+
+
 def render(
     source: str | os.PathLike[str],
     *,

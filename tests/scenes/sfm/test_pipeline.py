@@ -217,3 +217,11 @@ def test_splat_training_takes_the_posed_scene_as_it_is_and_starts_from_its_point
     points = json.loads((posed_scene / "report.json").read_text())["points"]
     assert metrics["splats"] == points  # no densification in two steps: one splat per SfM point
     assert np.isfinite(metrics["psnr"])
+
+
+def test_the_command_line_offers_exactly_the_pipelines_choices():
+    from pointfield.cli import scene as scene_cli
+
+    assert scene_cli.MATCHING == pipeline.MATCHING
+    assert scene_cli.MAPPERS == pipeline.MAPPERS
+    assert scene_cli.SFM_CAMERA_MODELS == pipeline.CAMERA_MODELS

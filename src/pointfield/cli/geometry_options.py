@@ -1,0 +1,39 @@
+"""The options of ``nerf export`` and ``splat export`` that give geometry: one definition for both.
+
+Both call :func:`pointfield.geometry.export_cloud` on the run; see it for what each option does.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_cloud_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--cloud", type=Path, metavar="OUT",
+                        help="write a point cloud of rendered depth (any format pointfield writes: .ply, .pcd, .las, ...)")
+    parser.add_argument("--path", choices=("dataset", "orbit", "spiral"), default="dataset",
+                        help="cameras to render from (default: the run's training views)")
+    parser.add_argument("--frames", type=int, help="cameras of the path (default: every training view; orbit 60)")
+    parser.add_argument("--points", type=int, help="thin the cloud to this many points (farthest point sampling)")
+    parser.add_argument("--min-opacity", type=float, default=0.5,
+                        help="pixels less opaque than this give no point (default 0.5)")
+    parser.add_argument("--crop", type=float, nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+                        help="keep only points inside this box")
+    parser.add_argument("--outlier-neighbours", type=int, default=16,
+                        help="drop points far from their N nearest, statistically (default 16; 0 keeps all)")
+    parser.add_argument("--device", help="auto (default), cpu, cuda, cuda:N or mps")
+    parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+
+
+def export_cloud_of(args: argparse.Namespace) -> None:
+    """Run :func:`pointfield.geometry.export_cloud` with the options above and print what it wrote."""
+    from pointfield.geometry import export_cloud
+
+    result = export_cloud(
+        args.run_dir, args.cloud, path=args.path, frames=args.frames, min_opacity=args.min_opacity,
+        crop=args.crop, points=args.points, outlier_neighbours=args.outlier_neighbours, device=args.device,
+        progress=args.progress,
+    )
+    print(f"wrote {result['points']:,} points (of {result['rendered_points']:,} rendered from "
+          f"{result['views']} views) to {result['out']}")
