@@ -1,6 +1,7 @@
 """The options of ``nerf export`` and ``splat export`` that give geometry: one definition for both.
 
-Both call :func:`pointfield.geometry.export_cloud` on the run; see it for what each option does.
+Both call :func:`pointfield.geometry.export_cloud` and :func:`~pointfield.geometry.export_mesh`
+on the run; see them for what each option does.
 """
 
 from __future__ import annotations
@@ -12,6 +13,11 @@ from pathlib import Path
 def add_cloud_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cloud", type=Path, metavar="OUT",
                         help="write a point cloud of rendered depth (any format pointfield writes: .ply, .pcd, .las, ...)")
+    parser.add_argument("--mesh", type=Path, metavar="OUT",
+                        help="write a mesh: rendered depth fused into a TSDF, marching cubes (.ply, .off, .obj, .glb)")
+    parser.add_argument("--resolution", type=int, default=256,
+                        help="mesh: TSDF voxels along the box's longest side (default 256)")
+    parser.add_argument("--faces", type=int, help="mesh: decimate to at most this many triangles")
     parser.add_argument("--path", choices=("dataset", "orbit", "spiral"), default="dataset",
                         help="cameras to render from (default: the run's training views)")
     parser.add_argument("--frames", type=int, help="cameras of the path (default: every training view; orbit 60)")
@@ -26,10 +32,21 @@ def add_cloud_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
 
 
-def export_cloud_of(args: argparse.Namespace) -> None:
-    """Run :func:`pointfield.geometry.export_cloud` with the options above and print what it wrote."""
-    from pointfield.geometry import export_cloud
+def export_geometry_of(args: argparse.Namespace) -> None:
+    """Run :func:`pointfield.geometry.export_cloud` / ``export_mesh`` as the options ask; print what was written."""
+    from pointfield.geometry import export_cloud, export_mesh
 
+    if args.mesh is not None:
+        result = export_mesh(
+            args.run_dir, args.mesh, resolution=args.resolution, path=args.path, frames=args.frames,
+            min_opacity=args.min_opacity, crop=args.crop, faces=args.faces, device=args.device,
+            progress=args.progress,
+        )
+        grid = "x".join(map(str, result["grid"]))
+        print(f"wrote {result['faces']:,} faces, {result['vertices']:,} vertices (TSDF {grid} over the "
+              f"{result['box_source']}, {result['views']} views) to {result['out']}")
+    if args.cloud is None:
+        return
     result = export_cloud(
         args.run_dir, args.cloud, path=args.path, frames=args.frames, min_opacity=args.min_opacity,
         crop=args.crop, points=args.points, outlier_neighbours=args.outlier_neighbours, device=args.device,

@@ -12,7 +12,7 @@ import argparse
 import json
 from pathlib import Path
 
-from pointfield.cli.geometry_options import add_cloud_options, export_cloud_of
+from pointfield.cli.geometry_options import add_cloud_options, export_geometry_of
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
 
@@ -77,7 +77,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     render.set_defaults(run=run_render)
 
     export = verbs.add_parser(
-        "export", help="geometry from a trained run: a point cloud of rendered depth",
+        "export", help="geometry from a trained run: a point cloud or a mesh of rendered depth",
         description="Render the run from the training views (or an orbit) and back-project every "
         "pixel opaque enough into a point with its colour and normal; crop, drop stray points, thin, "
         "and write any point-cloud format.",
@@ -133,9 +133,9 @@ def run_eval(args: argparse.Namespace) -> int:
 def run_export(args: argparse.Namespace) -> int:
     from pointfield.errors import PointfieldError
 
-    if args.cloud is None:
-        raise PointfieldError("nerf export needs --cloud OUT")
-    export_cloud_of(args)
+    if args.cloud is None and args.mesh is None:
+        raise PointfieldError("nerf export needs --cloud OUT or --mesh OUT")
+    export_geometry_of(args)
     return 0
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pointfield.cli.geometry_options import add_cloud_options, export_cloud_of
+from pointfield.cli.geometry_options import add_cloud_options, export_geometry_of
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
 DEFAULT_MAX_SPLATS = 200_000  # pointfield.splats.train.DEFAULT_MAX_SPLATS, without importing torch
@@ -113,14 +113,14 @@ def run_export(args: argparse.Namespace) -> int:
     from pointfield.errors import PointfieldError
     from pointfield.splats.run import export, export_centres
 
-    if args.out is None and args.centres is None and args.cloud is None:
-        raise PointfieldError("splat export needs --out (splats), --centres or --cloud")
+    if args.out is None and args.centres is None and args.cloud is None and args.mesh is None:
+        raise PointfieldError("splat export needs --out (splats), --centres, --cloud or --mesh")
     if args.out is not None:
         result = export(args.run_dir, args.out)
         print(f"wrote {result['splats']:,} splats (SH degree {result['sh_degree']}) to {result['out']}")
     if args.centres is not None:
         result = export_centres(args.run_dir, args.centres)
         print(f"wrote {result['points']:,} splat centres to {result['out']}")
-    if args.cloud is not None:
-        export_cloud_of(args)
+    if args.cloud is not None or args.mesh is not None:
+        export_geometry_of(args)
     return 0

@@ -1,0 +1,209 @@
+"""Meshes from any trained scene model: rendered depth fused into a TSDF, then marching cubes.
+
+::
+
+    export_mesh("runs/lego-ngp", "lego.ply", resolution=256, faces=200_000)   # or: nerf export RUN --mesh
+
+1. Render the run from its training views (or a path), through the one run interface; pixels
+   less opaque than ``min_opacity`` count as empty.
+2. Fuse their z-depth and colour into a :class:`~pointfield.geometry.tsdf.TSDFVolume` over the
+   box to reconstruct: ``crop`` if given, else the scene's box -- its ``aabb`` for an object,
+   the region of interest the contraction leaves undistorted for an unbounded capture
+   (:func:`pointfield.fields.scene_box.scene_bounds`, the box the hash-grid field trains in).
+3. Marching cubes at the zero level (scikit-image), only between observed voxels; vertex colours
+   from the grid.
+4. Drop floating pieces: connected components with fewer than ``min_component`` of the faces.
+5. Optionally decimate to ``faces`` triangles (fast-simplification, quadric error), colours
+   carried over from the nearest original vertex.
+6. Write PLY or OFF (pointfield's writers), OBJ or GLB (trimesh), atomically.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from pointfield.clouds.mesh import Mesh
+from pointfield.errors import PointfieldError
+from pointfield.geometry.clouds import PATHS, _scene_run
+from pointfield.geometry.tsdf import TSDFVolume
+
+MESH_SUFFIXES = (".ply", ".off", ".obj", ".glb")
+DEFAULT_MEMORY_FRACTION = 0.5
+"""A TSDF grid may take at most this fraction of the machine's memory (the rest is for everything else)."""
+
+
+def mesh_from_volume(volume: TSDFVolume, min_component: float = 0.01) -> Mesh:
+    """Marching cubes on the TSDF's zero level; vertex ``colors`` uint8; small components dropped."""
+    from skimage.measure import marching_cubes
+
+    tsdf = volume.tsdf.cpu().numpy()
+    observed = volume.weight.cpu().numpy() > 0
+    if tsdf.min() >= 0 or tsdf.max() <= 0:
+        raise PointfieldError("the fused depth holds no surface (no voxel is behind one); nothing to mesh")
+    vertices, faces, _, _ = marching_cubes(tsdf, level=0.0, allow_degenerate=False)
+    faces = faces[_between_observed(vertices, observed)[faces].all(axis=1)]
+    if len(faces) == 0:
+        raise PointfieldError("marching cubes found no surface in the fused depth")
+    world = volume.low.cpu().numpy().astype(np.float64) + (vertices.astype(np.float64) + 0.5) * volume.voxel
+    colours = volume.colors_at(torch.from_numpy(world).float()).cpu().numpy()
+    mesh = _compact(Mesh(world, {"colors": _as_uint8(colours)}, faces=faces.astype(np.int64)), faces)
+    return drop_small_components(mesh, min_component)
+
+
+def drop_small_components(mesh: Mesh, min_fraction: float) -> Mesh:
+    """Keep the connected pieces holding at least ``min_fraction`` of the faces (the largest always)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    faces = mesh.faces
+    count = len(mesh.points)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(count, count))
+    _, labels = connected_components(graph, directed=False)
+    face_labels = labels[faces[:, 0]]
+    sizes = np.bincount(face_labels)
+    keep_labels = (sizes >= min_fraction * len(faces)) | (sizes == sizes.max())
+    kept_faces = faces[keep_labels[face_labels]]
+    return _compact(mesh, kept_faces)
+
+
+def decimate(mesh: Mesh, faces: int) -> Mesh:
+    """At most ``faces`` triangles by quadric edge collapse (fast-simplification); colours from the nearest old vertex."""
+    import fast_simplification
+    from scipy.spatial import cKDTree
+
+    if len(mesh.faces) <= faces:
+        return mesh
+    points, triangles = fast_simplification.simplify(
+        mesh.points.astype(np.float32), mesh.faces.astype(np.int32), target_count=int(faces)
+    )
+    _, nearest = cKDTree(mesh.points).query(points, workers=-1)
+    fields = {name: values[nearest] for name, values in mesh.fields.items()}
+    return Mesh(points.astype(np.float64), fields, faces=triangles.astype(np.int64))
+
+
+def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
+    """PLY / OFF through pointfield's writers; OBJ / GLB through trimesh. Atomic either way."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        raise PointfieldError(f"{path}: a mesh is written as {', '.join(MESH_SUFFIXES)}, not {suffix or 'no suffix'}")
+    if suffix in (".ply", ".off"):
+        from pointfield.clouds.formats.registry import write
+
+        write(path, mesh)
+        return
+    import trimesh
+
+    from pointfield.atomic import atomic_path
+
+    colours = mesh.fields.get("colors")
+    shape = trimesh.Trimesh(mesh.points, mesh.faces, vertex_colors=colours, process=False)
+    with atomic_path(path) as temporary:
+        shape.export(temporary, file_type=suffix[1:])
+
+
+def export_mesh(
+    run: str | os.PathLike[str] | Any,
+    out: str | os.PathLike[str],
+    *,
+    resolution: int = 256,
+    path: str = "dataset",
+    frames: int | None = None,
+    min_opacity: float = 0.5,
+    crop: Sequence[float] | None = None,
+    faces: int | None = None,
+    min_component: float = 0.01,
+    truncation_voxels: float = 4.0,
+    device: str | None = None,
+    memory_limit: int | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Write the mesh of a trained scene run (module docstring) to ``out``; returns a summary.
+
+    Raises :class:`PointfieldError` for a run that is not a scene run, a grid too large for
+    ``memory_limit`` bytes (default: half the machine's memory; the message says how much it
+    would need and what resolution fits), and a result with no surface.
+    """
+    from tqdm.auto import tqdm
+
+    from pointfield.fields.scene_box import scene_bounds
+    from pointfield.scenes.heldout import training_and_heldout
+    from pointfield.scenes.paths import path_cameras
+
+    out = Path(out)
+    if out.suffix.lower() not in MESH_SUFFIXES:
+        raise PointfieldError(f"{out}: a mesh is written as {', '.join(MESH_SUFFIXES)}")
+    if path not in PATHS:
+        raise PointfieldError(f"path must be one of {', '.join(PATHS)}, got {path!r}")
+    scene_run = _scene_run(run, device)
+    scene = scene_run.scene
+    if crop is not None:
+        low, high = np.asarray(crop[:3], np.float64), np.asarray(crop[3:], np.float64)
+        box_source = "crop"
+    else:
+        (low, high), unbounded = scene_bounds(scene)
+        box_source = "region of interest of an unbounded capture" if unbounded else "scene box"
+    volume = TSDFVolume.create(
+        low, high, resolution, truncation_voxels=truncation_voxels, device=scene_run.device,
+        memory_limit=memory_limit if memory_limit is not None else _default_memory_limit(),
+    )
+    if path == "dataset":
+        training, _ = training_and_heldout(scene)
+        cameras = scene.cameras[training[:frames] if frames else training]
+    else:
+        cameras = path_cameras(scene, path, frames)
+    cameras = cameras.to(scene_run.device)
+    for index in tqdm(range(len(cameras)), desc="fusing", unit="view", disable=not progress):
+        view = scene_run.render(cameras[[index]])[0]
+        rays = cameras.rays(index)
+        z_depth = view["depth"].to(rays.axis_cosine) * rays.axis_cosine
+        z_depth = torch.where(view["opacity"].to(z_depth.device) >= min_opacity, z_depth, torch.zeros_like(z_depth))
+        volume.integrate(z_depth, view["rgb"], cameras, index)
+    mesh = mesh_from_volume(volume, min_component)
+    fused_faces = len(mesh.faces)
+    if faces is not None:
+        mesh = decimate(mesh, faces)
+    write_mesh(out, mesh)
+    return {
+        "out": str(out), "vertices": len(mesh.points), "faces": len(mesh.faces), "fused_faces": fused_faces,
+        "views": len(cameras), "grid": list(volume.shape), "voxel": volume.voxel, "box": [list(low), list(high)],
+        "box_source": box_source,
+    }
+
+
+def _between_observed(vertices: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """``(V,)`` True where both voxels of a vertex's grid edge were observed.
+
+    A marching-cubes vertex lies on the edge between two voxels; one of them unobserved (F = 1 as
+    initialised, e.g. inside a solid beyond the truncation) makes a false surface there.
+    """
+    low = np.floor(vertices).astype(np.int64)
+    high = np.ceil(vertices).astype(np.int64)
+    for corner in (low, high):
+        for axis, size in enumerate(observed.shape):
+            np.clip(corner[:, axis], 0, size - 1, out=corner[:, axis])
+    return observed[tuple(low.T)] & observed[tuple(high.T)]
+
+
+def _compact(mesh: Mesh, faces: np.ndarray) -> Mesh:
+    used, inverse = np.unique(faces.reshape(-1), return_inverse=True)
+    fields = {name: values[used] for name, values in mesh.fields.items()}
+    return Mesh(mesh.points[used], fields, faces=inverse.reshape(faces.shape).astype(np.int64))
+
+
+def _as_uint8(colours: np.ndarray) -> np.ndarray:
+    return (np.clip(colours, 0, 1) * 255).round().astype(np.uint8)
+
+
+def _default_memory_limit() -> int:
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") * DEFAULT_MEMORY_FRACTION)
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30

@@ -1,0 +1,79 @@
+"""TSDF fusion and marching cubes: the cube's own depth maps give the cube; files in every format."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from pointfield import read
+from pointfield.cli import main
+from pointfield.errors import PointfieldError
+from pointfield.geometry.meshes import decimate, export_mesh, mesh_from_volume, write_mesh
+from pointfield.geometry.tsdf import TSDFVolume
+from pointfield.scenes import synthetic_scene
+
+
+@pytest.fixture(scope="module")
+def fused_cube() -> TSDFVolume:
+    """The synthetic cube's exact depth maps (24 views of 64 px) fused over [-1, 1]^3 at 64^3."""
+    scene = synthetic_scene("cube", views=24, size=64)
+    volume = TSDFVolume.create([-1, -1, -1], [1, 1, 1], 64)
+    for index in range(len(scene)):
+        volume.integrate(torch.from_numpy(scene.depth(index)), torch.from_numpy(scene.image(index)),
+                         scene.cameras, index)
+    return volume
+
+
+def test_fusing_the_cubes_exact_depth_gives_the_cube(fused_cube):
+    mesh = mesh_from_volume(fused_cube)
+    vertices = mesh.points
+    # vertices on the cube's surface to a fraction of a voxel, and all six faces covered
+    distance_to_surface = np.abs(np.abs(vertices).max(axis=1) - 0.5)
+    assert np.median(distance_to_surface) < fused_cube.voxel / 4
+    assert np.percentile(distance_to_surface, 99) < 1.5 * fused_cube.voxel
+    faces_covered = {(axis, sign) for axis, sign in zip(np.abs(vertices).argmax(1), np.sign(
+        vertices[np.arange(len(vertices)), np.abs(vertices).argmax(1)]))}
+    assert len(faces_covered) == 6
+    # colours come from the images: the +x face is red
+    on_plus_x = vertices[:, 0] > 0.49
+    red, green, blue = mesh.fields["colors"][on_plus_x].mean(axis=0)
+    assert red > 2 * green and red > 2 * blue
+
+
+def test_decimation_and_every_file_format(fused_cube, tmp_path):
+    mesh = mesh_from_volume(fused_cube)
+    small = decimate(mesh, 500)
+    assert len(small.faces) <= 500 and "colors" in small.fields
+    for suffix in (".ply", ".off", ".obj", ".glb"):
+        write_mesh(tmp_path / f"cube{suffix}", small)
+        assert (tmp_path / f"cube{suffix}").stat().st_size > 1000
+    assert len(read(tmp_path / "cube.ply").faces) == len(small.faces)
+    with pytest.raises(PointfieldError, match="a mesh is written as"):
+        write_mesh(tmp_path / "cube.xyz", small)
+
+
+def test_a_grid_too_large_says_how_much_it_needs_and_what_fits():
+    with pytest.raises(PointfieldError, match=r"needs .* GiB, .* pass --resolution \d+ or less"):
+        TSDFVolume.create([0, 0, 0], [1, 1, 1], 1024, memory_limit=1 << 30)
+
+
+@pytest.fixture(scope="module")
+def splat_run(tmp_path_factory):
+    from pointfield.splats.train import train
+
+    out = tmp_path_factory.mktemp("runs") / "splats"
+    train(None, out=out, steps=30, eval_every=30, eval_views=1, cube_views=8, cube_size=24, progress=False)
+    return out
+
+
+def test_export_mesh_of_a_run_through_the_command_line(splat_run, tmp_path, capsys):
+    out = tmp_path / "mesh.ply"
+    code = main(["splat", "export", str(splat_run), "--mesh", str(out), "--resolution", "32",
+                 "--min-opacity", "0.05", "--no-progress"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert len(read(out).faces) > 0 and "faces" in captured.out
+    with pytest.raises(PointfieldError, match="no surface"):
+        export_mesh(splat_run, tmp_path / "none.ply", resolution=16, min_opacity=1.5, progress=False)
+    assert not (tmp_path / "none.ply").exists()
