@@ -98,3 +98,22 @@ def test_nothing_opaque_and_runs_that_are_not_scene_runs_are_clear_errors(splat_
     not_a_run.mkdir()
     assert main(["nerf", "export", str(not_a_run), "--cloud", str(tmp_path / "y.ply")]) == 1
     assert not (tmp_path / "y.ply").exists()
+
+
+def test_splat_depth_is_the_distance_along_the_ray_like_every_scene_models():
+    from pointfield.scenes import Cameras, look_at
+    from pointfield.splats.gaussians import Gaussians
+    from pointfield.splats.run import render_camera
+
+    # a wall of small opaque splats on the plane z = 0, seen from 4 units away, square on
+    grid = np.stack(np.meshgrid(np.linspace(-3, 3, 121), np.linspace(-3, 3, 121)), -1).reshape(-1, 2)
+    wall = Gaussians.from_points(np.concatenate([grid, np.zeros((len(grid), 1))], 1), opacity=0.99)
+    cameras = Cameras(look_at([[0.0, 0.0, -4.0]], up=(0.0, 1.0, 0.0)), fx=40.0, fy=40.0, cx=32.0, cy=32.0,
+                      width=64, height=64).to(dtype=torch.float32)
+    view = render_camera(wall, cameras, 0, torch.ones(3))
+    rays = cameras.rays(0)
+    covered = view["opacity"] > 0.95
+    distance_to_wall = 4.0 / rays.axis_cosine  # the plane is perpendicular to the optical axis
+    np.testing.assert_allclose(view["depth"][covered].numpy(), distance_to_wall[covered].numpy(), rtol=2e-3)
+    corner = rays.axis_cosine[0, 0]
+    assert corner < 0.8  # the test means something: corner rays are far off the axis

@@ -67,15 +67,21 @@ def render_views(
 def render_camera(
     gaussians: Gaussians, cameras: Cameras, index: int, background: torch.Tensor, rasterizer: str = "pointfield"
 ) -> View:
-    """Camera ``index`` rendered: ``rgb`` ``(H, W, 3)``, expected ``depth`` and ``opacity`` ``(H, W)``."""
+    """Camera ``index`` rendered: ``rgb`` ``(H, W, 3)``, expected ``depth`` and ``opacity`` ``(H, W)``.
+
+    The rasterizer blends each splat's camera z; depth is reported, as for every scene model, as
+    the distance along the pixel's ray: expected z divided by the cosine between the ray and the
+    optical axis.
+    """
     device = gaussians.means.device
     viewmats, Ks = camera_matrices(cameras[[index]], device)
     width, height = int(cameras.width[index]), int(cameras.height[index])
     colors, depths, alphas, _ = render_views(gaussians, viewmats, Ks, width, height, background,
                                              rasterizer=rasterizer)
+    axis_cosine = cameras.rays(index).axis_cosine.to(device, depths.dtype)
     return {
         "rgb": colors[0].clamp(0, 1),
-        "depth": depths[0] / alphas[0].clamp_min(1e-6),
+        "depth": depths[0] / alphas[0].clamp_min(1e-6) / axis_cosine,
         "opacity": alphas[0].clamp(0, 1),
     }
 
