@@ -45,7 +45,10 @@ class RenderedRays:
     ``color`` ``(R, 3)``; ``depth`` ``(R,)`` expected distance along the ray at which it stops,
     given that it stops (``sum w_i t_i / sum w_i``; 0 where nothing is hit); ``opacity`` ``(R,)``
     ``sum w_i``; ``weights`` shaped like the samples' ``t_starts`` (``(R, K)`` or ``(S,)``);
-    ``samples`` the :class:`~pointfield.fields.rays.RaySamples` composited.
+    ``samples`` the :class:`~pointfield.fields.rays.RaySamples` composited; ``median_depth``
+    ``(R,)`` the ``t`` of the first sample at which the accumulated opacity reaches 0.5 (0 where
+    it never does): the depth of a surface, where the expected depth of a semi-transparent or
+    doubled one falls between the layers.
     """
 
     color: torch.Tensor
@@ -53,6 +56,7 @@ class RenderedRays:
     opacity: torch.Tensor
     weights: torch.Tensor
     samples: RaySamples
+    median_depth: torch.Tensor | None = None
 
 
 def transmittance_from_optical_depth(
@@ -147,7 +151,34 @@ def composite(
         depth = sigmas.new_zeros(rays).index_add(0, index, weights * t) / opacity.clamp_min(1e-10)
     if background is not None:
         color = color + (1 - opacity)[..., None] * background
-    return RenderedRays(color, depth, opacity, weights, samples)
+    return RenderedRays(color, depth, opacity, weights, samples, median_depth(weights, t, samples))
+
+
+MEDIAN_OPACITY = 0.5
+
+
+def median_depth(weights: torch.Tensor, t: torch.Tensor, samples: RaySamples) -> torch.Tensor:
+    """``(R,)``: ``t`` of each ray's first sample where ``sum_{j<=i} w_j >= 0.5``; 0 if none (no gradient)."""
+    weights, t = weights.detach(), t.detach()
+    if samples.ray_indices is None:
+        accumulated = torch.cumsum(weights, dim=-1)
+        first = (accumulated < MEDIAN_OPACITY).sum(dim=-1, keepdim=True).clamp(max=max(t.shape[-1] - 1, 0))
+        reached = accumulated[..., -1] >= MEDIAN_OPACITY if t.shape[-1] else torch.zeros_like(t[..., 0], dtype=torch.bool)
+        median = t.gather(-1, first)[..., 0] if t.shape[-1] else torch.zeros(t.shape[:-1], dtype=t.dtype, device=t.device)
+        return torch.where(reached, median, torch.zeros_like(median))
+    index, rays = samples.ray_indices, samples.num_rays
+    median = t.new_zeros(rays)
+    if len(index) == 0:
+        return median
+    # Each ray's running sum, from one global cumulative sum minus its value where the ray starts.
+    inclusive = torch.cumsum(weights.double(), dim=0)
+    start = torch.ones_like(index, dtype=torch.bool)
+    start[1:] = index[1:] != index[:-1]
+    run = torch.cumsum(start.long(), dim=0) - 1
+    accumulated = inclusive - (inclusive - weights.double())[start][run]
+    before = accumulated - weights.double()
+    crossing = (accumulated >= MEDIAN_OPACITY) & (before < MEDIAN_OPACITY)
+    return median.index_put((index[crossing],), t[crossing])
 
 
 def render_rays(
