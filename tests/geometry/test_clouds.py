@@ -67,15 +67,6 @@ def test_clean_cloud_crops_drops_strays_and_thins():
         clean_cloud(cloud, crop=[1, 0, 0, 0, 1, 1])
 
 
-@pytest.fixture(scope="module")
-def splat_run(tmp_path_factory):
-    from pointfield.splats.train import train
-
-    out = tmp_path_factory.mktemp("runs") / "splats"
-    train(None, out=out, steps=30, eval_every=30, eval_views=1, cube_views=8, cube_size=24, progress=False)
-    return out
-
-
 def test_export_cloud_of_a_splat_run_through_the_command_line(splat_run, tmp_path, capsys):
     out = tmp_path / "cloud.ply"
     assert main(["splat", "export", str(splat_run), "--cloud", str(out), "--min-opacity", "0.05",

@@ -58,15 +58,6 @@ def test_a_grid_too_large_says_how_much_it_needs_and_what_fits():
         TSDFVolume.create([0, 0, 0], [1, 1, 1], 1024, memory_limit=1 << 30)
 
 
-@pytest.fixture(scope="module")
-def splat_run(tmp_path_factory):
-    from pointfield.splats.train import train
-
-    out = tmp_path_factory.mktemp("runs") / "splats"
-    train(None, out=out, steps=30, eval_every=30, eval_views=1, cube_views=8, cube_size=24, progress=False)
-    return out
-
-
 def test_export_mesh_of_a_run_through_the_command_line(splat_run, tmp_path, capsys):
     out = tmp_path / "mesh.ply"
     code = main(["splat", "export", str(splat_run), "--mesh", str(out), "--resolution", "32",
