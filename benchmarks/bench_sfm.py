@@ -36,7 +36,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
 from harness import Record
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -151,7 +150,7 @@ def pose_table(record: Record, args, datasets: list[Dataset]) -> dict[str, dict[
             print(f"{dataset.name}: {key} ...", flush=True)
             try:
                 result = contender()
-            except Exception as error:  # a pipeline that fails on a scene is a result, not a crash
+            except Exception as error:  # noqa: BLE001 -- a pipeline failing on a scene is a result, not a crash
                 record.note(f"{dataset.name}: {key} failed: {error}")
                 continue
             result["accuracy"] = accuracy(result.pop("poses"), given)
@@ -221,14 +220,18 @@ def training_table(record: Record, args) -> None:
     same_views = heldout["given poses"] == heldout["SfM poses"]
     record.verdict("both trainings hold out the same views", same_views, ", ".join(heldout["given poses"]))
     common = {"downscale": args.downscale, "holdout_every": 8, "max_time": args.training_seconds, "progress": False}
+
+    def field_run(scene: Path, out: str):
+        return lambda: train_field(scene, model="ngp", out=args.out / out, eval_views=10, steps=10**6, **common)
+
+    def splat_run(scene: Path, out: str, init: str = "auto"):
+        return lambda: train_splats(scene, out=args.out / out, eval_views=10, steps=10**6, init=init, **common)
+
     runs = []
-    for label, scene in scenes.items():
-        runs.append(("ngp", label, "-", lambda s=scene, o=f"ngp-{len(runs)}": train_field(
-            s, model="ngp", out=args.out / o, eval_views=10, steps=10**6, **common)))
-        runs.append(("splat", label, "auto", lambda s=scene, o=f"splat-{len(runs)}": train_splats(
-            s, out=args.out / o, eval_views=10, steps=10**6, **common)))
-    runs.append(("splat", "SfM poses", "random", lambda: train_splats(
-        sfm_scene, out=args.out / "splat-random", eval_views=10, steps=10**6, init="random", **common)))
+    for number, (label, scene) in enumerate(scenes.items()):
+        runs.append(("ngp", label, "-", field_run(scene, f"ngp-{number}")))
+        runs.append(("splat", label, "auto", splat_run(scene, f"splat-{number}")))
+    runs.append(("splat", "SfM poses", "random", splat_run(sfm_scene, "splat-random", init="random")))
     rows, psnr = [], {}
     for model, label, init, run in runs:
         print(f"training {model} on the fox, {label}, init {init} ...", flush=True)

@@ -9,7 +9,12 @@ import torch
 from pointfield import read
 from pointfield.cli import main
 from pointfield.errors import PointfieldError
-from pointfield.geometry.meshes import decimate, export_mesh, mesh_from_volume, write_mesh
+from pointfield.geometry.meshes import (
+    decimate,
+    export_mesh,
+    mesh_from_volume,
+    write_mesh,
+)
 from pointfield.geometry.tsdf import TSDFVolume
 from pointfield.scenes import synthetic_scene
 

@@ -10,7 +10,12 @@ import torch
 
 from pointfield.scenes import Cameras, look_at, make_scene, read_scene, render_scene
 from pointfield.scenes.scene import SceneError
-from pointfield.scenes.synthetic import CUBE_FACE_COLORS, camera_positions, split_indices, synthetic_scene
+from pointfield.scenes.synthetic import (
+    CUBE_FACE_COLORS,
+    camera_positions,
+    split_indices,
+    synthetic_scene,
+)
 
 
 def ray_box_distance(origins: np.ndarray, directions: np.ndarray, half: float) -> np.ndarray:

@@ -10,7 +10,12 @@ Everything here renders through the one run interface (``load_run(path).render(c
 TinyNeRF, NeRF, the hash-grid field and splats give geometry the same way.
 """
 
-from pointfield.geometry.clouds import backproject, clean_cloud, cloud_from_views, export_cloud
+from pointfield.geometry.clouds import (
+    backproject,
+    clean_cloud,
+    cloud_from_views,
+    export_cloud,
+)
 from pointfield.geometry.meshes import export_mesh, mesh_from_volume, write_mesh
 from pointfield.geometry.tsdf import TSDFVolume
 

@@ -42,7 +42,7 @@ def grid_shape(low, high, resolution: int) -> tuple[tuple[int, int, int], float]
     if resolution < 2 or np.any(extent <= 0):
         raise PointfieldError(f"a TSDF grid needs a resolution of 2 or more and a box with volume, got {resolution}, {extent}")
     voxel = float(extent.max()) / resolution
-    shape = tuple(max(2, int(math.ceil(e / voxel))) for e in extent)
+    shape = tuple(max(2, math.ceil(e / voxel)) for e in extent)
     return shape, voxel
 
 
@@ -100,7 +100,7 @@ class TSDFVolume:
 
     def voxel_centres(self, flat_indices: torch.Tensor) -> torch.Tensor:
         """World coordinates ``(K, 3)`` of the voxels with these flat (C-order) indices."""
-        nx, ny, nz = self.shape
+        _, ny, nz = self.shape
         i = flat_indices // (ny * nz)
         j = (flat_indices // nz) % ny
         k = flat_indices % nz

@@ -25,7 +25,7 @@ def shared_feature_images(count: int, shared: int, own: int, seed: int) -> list[
     links = [rng.random((shared, 128)).astype(np.float32) for _ in range(count)]  # link i: between i and i+1
     images = []
     for i in range(count):
-        noise = lambda a: a + 0.02 * rng.random(a.shape).astype(np.float32)  # noqa: E731
+        noise = lambda a: a + 0.02 * rng.random(a.shape).astype(np.float32)
         images.append(
             np.concatenate([noise(links[i]), noise(links[i - 1]), rng.random((own, 128)).astype(np.float32)])
         )

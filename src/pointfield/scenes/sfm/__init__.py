@@ -14,7 +14,12 @@ and docs/photos.md for the guide.
 
 from pointfield.scenes.sfm.errors import PosingError
 from pointfield.scenes.sfm.photos import Photo, gather_photos
-from pointfield.scenes.sfm.pipeline import PosingOptions, PosingReport, pose_images, pose_video
+from pointfield.scenes.sfm.pipeline import (
+    PosingOptions,
+    PosingReport,
+    pose_images,
+    pose_video,
+)
 from pointfield.scenes.sfm.video import extract_frames, sharpness
 
 __all__ = [

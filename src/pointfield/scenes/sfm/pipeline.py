@@ -152,8 +152,10 @@ class PosingReport:
         """The report as the lines the command prints."""
         lines = [
             f"posed {self.registered} of {self.images} images -> {self.out}",
-            f"  mean reprojection error {self.reprojection_error:.3f} px, mean track length "
-            f"{self.track_length:.2f}, {self.points} sparse points",
+            (
+                f"  mean reprojection error {self.reprojection_error:.3f} px, mean track length "
+                f"{self.track_length:.2f}, {self.points} sparse points"
+            ),
             f"  {self.pairs} pairs matched ({self.matching}), {self.mapper} mapping, features on {self.device}",
         ]
         for camera in self.cameras:
