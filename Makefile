@@ -66,6 +66,7 @@ bench-march: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_march.py
 
 bench-sfm: $(BIN)/.colmap
+	$(BIN)/python benchmarks/bench_sfm.py
 	$(BIN)/python benchmarks/bench_sfm.py --training
 
 # TinyNeRF, the hash-grid field and splats on lego in one run (about 45 minutes on 2 cores).
