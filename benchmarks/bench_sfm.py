@@ -102,7 +102,7 @@ def run_pointfield(dataset: Dataset, mapper: str, out: Path) -> dict:
     seconds = time.perf_counter() - started
     stages = report.stage_seconds
     return {
-        "pipeline": f"pointfield ({mapper})",
+        "pipeline": f"pointfield ({mapper}{': ' + report.mapper if mapper == 'auto' else ''})",
         "seconds": seconds,
         "features": stages["features"],
         "matching": stages["matching"],
@@ -296,7 +296,7 @@ def training_table(record: Record, args) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", default="fox,lego,milk,phone", help="comma-separated: fox, lego, milk, phone")
-    parser.add_argument("--mappers", default="global,incremental", help="pointfield mappers to run (first = default)")
+    parser.add_argument("--mappers", default="auto,global", help="pointfield mappers to run (first = default)")
     parser.add_argument("--no-peer", dest="peer", action="store_false", help="skip the COLMAP CLI pipeline")
     parser.add_argument("--peer-scenes", help="scenes to run the COLMAP CLI on (default: all; lego takes ~20 min)")
     parser.add_argument("--training", action="store_true",

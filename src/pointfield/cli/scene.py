@@ -20,7 +20,7 @@ WRITABLE_FORMATS = ("nerfstudio", "blender")
 SYNTHETIC_NAMES = ("cube", "spheres", "still-life", "textured")
 # Mirrors of pointfield.scenes.sfm.pipeline's choices, so that --help needs no pycolmap import.
 MATCHING = ("auto", "exhaustive", "retrieval", "sequential")
-MAPPERS = ("global", "incremental")
+MAPPERS = ("auto", "incremental", "global")
 SFM_CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 LAYOUTS = ("sphere", "hemisphere", "ring")
 
@@ -128,7 +128,11 @@ def _posing_options(parser: argparse.ArgumentParser) -> None:
         "--neighbours", type=int, default=10, help="retrieval partners per image (default: 10)"
     )
     parser.add_argument(
-        "--mapper", choices=MAPPERS, default="global", help="global (GLOMAP) or incremental (default: global)"
+        "--mapper",
+        choices=MAPPERS,
+        default="auto",
+        help="incremental (COLMAP), global (GLOMAP), or auto: incremental, and where it leaves images out "
+        "global too, keeping the model with more images (default)",
     )
     parser.add_argument(
         "--camera-model", choices=SFM_CAMERA_MODELS, default="SIMPLE_RADIAL", help="default: SIMPLE_RADIAL"

@@ -5,7 +5,7 @@ The stages, each timed, each with its own progress bar::
     images        gather and check the photos (or pick the sharpest video frames)   photos.py, video.py
     features      SIFT on images resized to ``max_size`` (keypoints in original pixels)
     matching      choose pairs (pairs.py), SIFT matching, two-view geometric verification
-    mapping       global (GLOMAP) or incremental (COLMAP) mapping; the largest model is kept
+    mapping       incremental (COLMAP) or global (GLOMAP) mapping; the largest model is kept
     undistortion  images and cameras undistorted to PINHOLE
     scene         transforms.json, colmap/sparse/0, points3D.ply, images_2/4/8, report
 
@@ -28,9 +28,11 @@ Choices (measured in benchmarks/bench_sfm.py; see the README's "Photos and video
 - Pairs: exhaustive up to ``EXHAUSTIVE_UP_TO`` photos, above that retrieval (pairs.py); video:
   each frame with the next ``overlap`` ones plus retrieval neighbours, which finds the loops
   where a walk-around returns to its start.
-- The global mapper by default: on the fox and lego it was as accurate as the incremental one
-  and faster, and on the LLFF milk photos and COLMAP's tiny phone scene the incremental mapper
-  registered too few images to go on where the global one registered all but one.
+- Mapper "auto": incremental; where it leaves images out, global too, keeping the model with
+  more images (incremental on a tie). On the fox and lego both register everything; incremental was as accurate in every
+  run, global in most but not all (its random start once left lego cameras 24 degrees off). On
+  the LLFF milk photos and COLMAP's tiny phone scene incremental registered too few images to go
+  on, where global registered all but one.
 - Registration below half the images is an error (the scene would not be the one photographed);
   between half and all, a warning lists the images left out.
 """
@@ -56,7 +58,7 @@ from pointfield.scenes.sfm.photos import Photo, gather_photos, natural_key
 
 STAGES = ("images", "features", "matching", "mapping", "undistortion", "scene")
 MATCHING = ("auto", "exhaustive", "retrieval", "sequential")
-MAPPERS = ("global", "incremental")
+MAPPERS = ("auto", "incremental", "global")
 CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 EXHAUSTIVE_UP_TO = 30
 """Photo sets up to this size are matched all against all (435 pairs at 30: seconds)."""
@@ -77,7 +79,8 @@ class PosingOptions:
     - ``matching``: one of :data:`MATCHING`; "auto" picks exhaustive for up to
       :data:`EXHAUSTIVE_UP_TO` photos, retrieval above, sequential plus retrieval for video.
     - ``neighbours``: retrieval partners per image; ``overlap``: following frames per frame.
-    - ``mapper``: "global" (GLOMAP, merged into COLMAP 4) or "incremental" (COLMAP's classic).
+    - ``mapper``: "auto" (incremental; where it leaves images out, global too, and the model with
+      more images is kept), "incremental" (COLMAP's classic) or "global" (GLOMAP, in COLMAP 4).
     - ``camera_model``: COLMAP's model for the unknown cameras, one of :data:`CAMERA_MODELS`.
     - ``downscales``: the factors of the images_N folders written beside images/.
     - ``threads``: CPU threads for pycolmap (-1: all).
@@ -88,7 +91,7 @@ class PosingOptions:
     matching: str = "auto"
     neighbours: int = 10
     overlap: int = 10
-    mapper: str = "global"
+    mapper: str = "auto"
     camera_model: str = "SIMPLE_RADIAL"
     downscales: tuple[int, ...] = (2, 4, 8)
     threads: int = -1
@@ -433,14 +436,49 @@ def _choose_pairs(database, images, mode: str, options: PosingOptions) -> list[t
 
 
 def _mapping_stage(work: _Work, options: PosingOptions, progress: bool) -> dict[str, Any]:
+    photos = work.state["data"]["photos"]
+    order = {"auto": ("incremental", "global"), "incremental": ("incremental",), "global": ("global",)}
+    best: tuple[int, str, Any, int] | None = None
+    for mapper in order[options.mapper]:
+        models = _map(work, mapper, options, len(photos), progress)
+        largest = max(models.values(), key=lambda model: model.num_reg_images(), default=None)
+        count = largest.num_reg_images() if largest is not None else 0
+        if best is None or count > best[0]:
+            best = (count, mapper, largest, len(models))
+        if count == len(photos):
+            break  # "auto" tries the global mapper only where incremental left images out
+    registered, mapper, largest, model_count = best
+    _check_registration(registered, len(photos), options, work)
+    # The kept model goes to sparse/0 alone: pycolmap numbers the models it writes from 0.
+    for child in work.sparse.iterdir():
+        shutil.rmtree(child)
+    (work.sparse / "0").mkdir()
+    largest.write(work.sparse / "0")
+    names = {image.name for image in largest.images.values() if image.has_pose}
+    return {
+        "registered": sorted(names, key=natural_key),
+        "mapper_used": mapper,
+        "models": model_count,
+        "reprojection_error": float(largest.compute_mean_reprojection_error()),
+        "track_length": float(largest.compute_mean_track_length()),
+        "points": int(largest.num_points3D()),
+        "cameras": [
+            {"model": camera.model.name, "width": camera.width, "height": camera.height, "params": list(map(float, camera.params))}
+            for camera in largest.cameras.values()
+        ],
+    }
+
+
+def _map(work: _Work, mapper: str, options: PosingOptions, count: int, progress: bool) -> dict:
+    """Run one mapper into an empty ``sparse/``; its models by index (kept in memory, so a later
+    mapper may overwrite the folder)."""
     import pycolmap
     from tqdm.auto import tqdm
 
     shutil.rmtree(work.sparse, ignore_errors=True)
     work.sparse.mkdir(parents=True)
-    photos = work.state["data"]["photos"]
-    with tqdm(total=len(photos), desc="mapping", unit="image", disable=not progress) as bar:
-        if options.mapper == "incremental":
+    with tqdm(total=count, desc=f"mapping ({mapper})", unit="image", disable=not progress) as bar:
+        if mapper == "incremental":
             pipeline = pycolmap.IncrementalPipelineOptions()
             pipeline.num_threads = options.threads
             # COLMAP drops models under min(10, 0.8 N) images; how many is enough is decided
@@ -454,32 +492,18 @@ def _mapping_stage(work: _Work, options: PosingOptions, progress: bool) -> dict[
             pipeline.num_threads = options.threads
             pipeline.min_model_size = 3
             models = pycolmap.global_mapping(work.database, work.images, work.sparse, pipeline)
-        largest = max(models.values(), key=lambda model: model.num_reg_images(), default=None)
-        registered = largest.num_reg_images() if largest is not None else 0
-        bar.n = registered
+        bar.n = max((model.num_reg_images() for model in models.values()), default=0)
         bar.refresh()
-    _check_registration(registered, len(photos), options, work)
-    # The kept model goes to sparse/0 alone: pycolmap numbers the models it writes from 0.
-    for child in work.sparse.iterdir():
-        shutil.rmtree(child)
-    (work.sparse / "0").mkdir()
-    largest.write(work.sparse / "0")
-    names = {image.name for image in largest.images.values() if image.has_pose}
-    return {
-        "registered": sorted(names, key=natural_key),
-        "models": len(models),
-        "reprojection_error": float(largest.compute_mean_reprojection_error()),
-        "track_length": float(largest.compute_mean_track_length()),
-        "points": int(largest.num_points3D()),
-        "cameras": [
-            {"model": camera.model.name, "width": camera.width, "height": camera.height, "params": list(map(float, camera.params))}
-            for camera in largest.cameras.values()
-        ],
-    }
+    return models
+
+
+def _enough(total: int) -> int:
+    """Registered images below this are an error: half of them, and at least 3."""
+    return max(3, (total + 1) // 2)
 
 
 def _check_registration(registered: int, total: int, options: PosingOptions, work: _Work) -> None:
-    if registered >= max(3, (total + 1) // 2):
+    if registered >= _enough(total):
         if registered < total:
             warnings.warn(f"{total - registered} of {total} images could not be registered; see the report", stacklevel=3)
         return
@@ -553,7 +577,7 @@ def _report(work: _Work, out: Path, options: PosingOptions, device: str) -> Posi
         points=data["points"],
         pairs=data["pairs"],
         matching=data["matching_mode"],
-        mapper=options.mapper,
+        mapper=data.get("mapper_used", options.mapper),
         models=data["models"],
         cameras=data["cameras"],
         stage_seconds=work.seconds(),
