@@ -197,20 +197,28 @@ def pose_verdicts(record: Record, results: dict[str, dict[str, dict]], datasets:
                         f"than the COLMAP CLI pipeline ({result['seconds']:.1f} s against {peer['seconds']:.1f} s).")
 
 
-def undistorted_given(dataset: Dataset, out: Path) -> Path:
-    """The dataset with its given poses and intrinsics, undistorted by COLMAP's undistorter (as SfM scenes are).
+def undistorted_given(dataset: Dataset, out: Path, sfm_scene: Path) -> Path:
+    """The dataset with its given poses, as like the SfM scene as it can be but for the poses.
 
-    The given cameras are written as a COLMAP text model (one OPENCV camera), then
-    ``pycolmap.undistort_images`` writes ``out/images`` and ``out/sparse`` (PINHOLE), which
-    pointfield reads as a COLMAP scene.
+    The given cameras are written as a COLMAP text model (one OPENCV camera) and undistorted by
+    ``pycolmap.undistort_images``, as SfM scenes are. The given poses come with no sparse points,
+    and training needs near/far bounds (ngp) and starts splats from points: the SfM scene's
+    points are carried into the given world by the similarity that aligns the SfM cameras onto
+    the given ones, and near/far computed from them as the COLMAP reader does. The result is
+    written as a nerfstudio scene in ``out``.
     """
     import pycolmap
     from scipy.spatial.transform import Rotation
 
+    from pointfield.clouds.cloud import PointCloud
     from pointfield.scenes import read_scene
+    from pointfield.scenes.alignment import pose_errors
+    from pointfield.scenes.formats.colmap.scene import _near_far_from_points
+    from pointfield.scenes.formats.transforms_json import write_nerfstudio
 
-    if (out / "sparse").is_dir():
+    if (out / "transforms.json").is_file():
         return out
+    undistorted = out.with_name(out.name + "-colmap")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         scene = read_scene(dataset.given, format=dataset.given_format)
@@ -235,7 +243,18 @@ def undistorted_given(dataset: Dataset, out: Path) -> Path:
         lines.append(f"{index + 1} {pose} 1 {Path(frame.image_path).name}\n\n")
     (model / "images.txt").write_text("".join(lines))
     (model / "points3D.txt").write_text("")
-    pycolmap.undistort_images(out, model, Path(scene.frames[0].image_path).parent)
+    shutil.rmtree(undistorted, ignore_errors=True)
+    pycolmap.undistort_images(undistorted, model, Path(scene.frames[0].image_path).parent)
+    given = read_scene(undistorted, format="colmap")
+    found = read_scene(sfm_scene)
+    found_by_name = {Path(f.image_path).name: i for i, f in enumerate(found.frames)}
+    order = [found_by_name[Path(f.image_path).name] for f in given.frames]
+    alignment = pose_errors(found.cameras.camera_to_world[order].double().numpy(),
+                            given.cameras.camera_to_world.double().numpy())
+    points = alignment.scale * found.points.points.astype(np.float64) @ alignment.rotation.T + alignment.translation
+    given.points = PointCloud(points, {"colors": found.points.fields["colors"]})
+    given.near_far = _near_far_from_points(given.cameras, points)
+    write_nerfstudio(given, out, points_file="points3D.ply")
     return out
 
 
@@ -257,7 +276,7 @@ def training_table(record: Record, args) -> None:
     sfm_scene = args.out / f"fox-{args.mappers[0]}"
     if not (sfm_scene / "transforms.json").is_file():
         run_pointfield(DATASETS["fox"], args.mappers[0], sfm_scene)
-    scenes = {"given poses": undistorted_given(DATASETS["fox"], args.out / "fox-given-undistorted"), "SfM poses": sfm_scene}
+    scenes = {"given poses": undistorted_given(DATASETS["fox"], args.out / "fox-given", sfm_scene), "SfM poses": sfm_scene}
     heldout = {label: heldout_names(scene) for label, scene in scenes.items()}
     same_views = heldout["given poses"] == heldout["SfM poses"]
     record.verdict("both trainings hold out the same views", same_views, ", ".join(heldout["given poses"]))
