@@ -120,19 +120,9 @@ def export_cloud(
     from tqdm.auto import tqdm
 
     from pointfield.clouds.formats.registry import write
-    from pointfield.scenes.heldout import training_and_heldout
-    from pointfield.scenes.paths import path_cameras
 
     scene_run = _scene_run(run, device)
-    if path not in PATHS:
-        raise PointfieldError(f"path must be one of {', '.join(PATHS)}, got {path!r}")
-    scene = scene_run.scene
-    if path == "dataset":
-        training, _ = training_and_heldout(scene)
-        cameras = scene.cameras[training[:frames] if frames else training]
-    else:
-        cameras = path_cameras(scene, path, frames)
-    cameras = cameras.to(scene_run.device)
+    cameras = cameras_of(scene_run, path, frames)
     views = []
     for index in tqdm(range(len(cameras)), desc="rendering", unit="view", disable=not progress):
         views.extend(scene_run.render(cameras[[index]]))
@@ -149,6 +139,23 @@ def export_cloud(
         raise PointfieldError(f"{scene_run.path}: no point is left inside the crop box {list(crop or [])}")
     write(out, cloud)
     return {"out": str(out), "points": len(cloud.points), "views": len(cameras), "rendered_points": rendered}
+
+
+def cameras_of(scene_run, path: str, frames: int | None):
+    """The cameras to render geometry from, on the run's device: the run's training views
+    ("dataset", the first ``frames`` of them if given) or ``frames`` cameras of an orbit / spiral."""
+    from pointfield.scenes.heldout import training_and_heldout
+    from pointfield.scenes.paths import path_cameras
+
+    if path not in PATHS:
+        raise PointfieldError(f"path must be one of {', '.join(PATHS)}, got {path!r}")
+    scene = scene_run.scene
+    if path == "dataset":
+        training, _ = training_and_heldout(scene)
+        cameras = scene.cameras[training[:frames] if frames else training]
+    else:
+        cameras = path_cameras(scene, path, frames)
+    return cameras.to(scene_run.device)
 
 
 def _scene_run(run, device):

@@ -30,7 +30,7 @@ import torch
 
 from pointfield.clouds.mesh import Mesh
 from pointfield.errors import PointfieldError
-from pointfield.geometry.clouds import PATHS, _scene_run
+from pointfield.geometry.clouds import _scene_run, cameras_of
 from pointfield.geometry.tsdf import TSDFVolume
 
 MESH_SUFFIXES = (".ply", ".off", ".obj", ".glb")
@@ -134,15 +134,12 @@ def export_mesh(
     from tqdm.auto import tqdm
 
     from pointfield.fields.scene_box import scene_bounds
-    from pointfield.scenes.heldout import training_and_heldout
-    from pointfield.scenes.paths import path_cameras
 
     out = Path(out)
     if out.suffix.lower() not in MESH_SUFFIXES:
         raise PointfieldError(f"{out}: a mesh is written as {', '.join(MESH_SUFFIXES)}")
-    if path not in PATHS:
-        raise PointfieldError(f"path must be one of {', '.join(PATHS)}, got {path!r}")
     scene_run = _scene_run(run, device)
+    cameras = cameras_of(scene_run, path, frames)
     scene = scene_run.scene
     if crop is not None:
         low, high = np.asarray(crop[:3], np.float64), np.asarray(crop[3:], np.float64)
@@ -154,12 +151,6 @@ def export_mesh(
         low, high, resolution, truncation_voxels=truncation_voxels, device=scene_run.device,
         memory_limit=memory_limit if memory_limit is not None else _default_memory_limit(),
     )
-    if path == "dataset":
-        training, _ = training_and_heldout(scene)
-        cameras = scene.cameras[training[:frames] if frames else training]
-    else:
-        cameras = path_cameras(scene, path, frames)
-    cameras = cameras.to(scene_run.device)
     for index in tqdm(range(len(cameras)), desc="fusing", unit="view", disable=not progress):
         view = scene_run.render(cameras[[index]])[0]
         rays = cameras.rays(index)
