@@ -1,16 +1,17 @@
-"""TSDF fusion: pointfield's (PyTorch) against open3d's on the same depth maps.
+"""TSDF fusion: pointfield's (PyTorch, sparse voxel blocks) against open3d's two on the same depth maps.
 
 The depth maps are the synthetic cube's exact ones (``scene make cube``: an analytic surface, so
 the true surface is known), fused over [-1, 1]^3 at ``--resolution`` voxels a side with a
-truncation of 4 voxels by both, then meshed by each library's marching cubes. Reported, from one
-run with the two interleaved (:func:`harness.interleaved`): depth maps fused per second at 100 x
-100 and at 800 x 800, and each mesh's distance to the true cube surface (median and 95th
+truncation of 4 voxels by each, then meshed by each library's marching cubes. Reported, from one
+run with the three interleaved (:func:`harness.interleaved`): depth maps fused per second at
+100 x 100 and at 800 x 800, and each mesh's distance to the true cube surface (median and 95th
 percentile of its vertices' distances, in voxels) -- the ceiling of the method on perfect depth.
 
-The peer is open3d's ``UniformTSDFVolume`` (dense, like pointfield's). The issue names its
-``ScalableTSDFVolume``; in the open3d-cpu 0.20 wheel here that one extracts nothing, even from a
-single flat depth map that ``UniformTSDFVolume`` fuses to 1,024 points (checked by
-:func:`scalable_volume_works`, whose answer the record keeps).
+The peers are open3d's ``VoxelBlockGrid`` (its tensor-based, sparse voxel-block TSDF, the
+successor of ``ScalableTSDFVolume``) and ``UniformTSDFVolume`` (dense). The issue names the legacy
+``ScalableTSDFVolume``; in the open3d-cpu 0.20 wheel here it fuses the cube's 24 depth maps into
+nothing (no vertex; :func:`legacy_scalable_vertices` checks it in every run and the record keeps
+the count), while ``UniformTSDFVolume`` and ``VoxelBlockGrid`` mesh the same maps.
 
 Part of issue 14. Run: ``make bench-tsdf`` (= ``python benchmarks/bench_tsdf.py``); the record goes to
 ``benchmarks/records/tsdf.json``.
@@ -39,12 +40,10 @@ def cube_views(views: int, size: int):
 
 
 def fuse_pointfield(cameras, depths, colours, resolution: int):
-    from pointfield.geometry.tsdf import TSDFVolume
+    from pointfield.geometry.tsdf import TSDFVolume, fuse
 
     volume = TSDFVolume.create(*BOX, resolution, truncation_voxels=TRUNCATION_VOXELS)
-    for index, (depth, colour) in enumerate(zip(depths, colours)):
-        volume.integrate(torch.from_numpy(depth), torch.from_numpy(colour), cameras, index)
-    return volume
+    return fuse(volume, [(torch.from_numpy(d), torch.from_numpy(c)) for d, c in zip(depths, colours)], cameras)
 
 
 def _rgbd(depth: np.ndarray, colour: np.ndarray):
@@ -68,24 +67,58 @@ def fuse_open3d(cameras, depths, colours, resolution: int):
     world_to_camera = cameras.world_to_camera().double().numpy()
     for index, (depth, colour) in enumerate(zip(depths, colours)):
         height, width = depth.shape
-        intrinsic = o3d.camera.PinholeCameraIntrinsic(
-            width, height, float(cameras.fx[index]), float(cameras.fy[index]),
-            float(cameras.cx[index]) - 0.5, float(cameras.cy[index]) - 0.5,  # open3d: pixel centres at integers
-        )
+        k = _intrinsics(cameras, index)
+        intrinsic = o3d.camera.PinholeCameraIntrinsic(width, height, k[0, 0], k[1, 1], k[0, 2], k[1, 2])
         volume.integrate(_rgbd(depth, colour), intrinsic, world_to_camera[index])
     return volume
 
 
-def scalable_volume_works() -> bool:
-    """Whether open3d's ScalableTSDFVolume fuses one flat depth map into any point at all."""
+def _intrinsics(cameras, index: int) -> np.ndarray:
+    """The 3 x 3 intrinsic matrix in open3d's convention (pixel centres at integers, not + 0.5)."""
+    return np.array([[float(cameras.fx[index]), 0.0, float(cameras.cx[index]) - 0.5],
+                     [0.0, float(cameras.fy[index]), float(cameras.cy[index]) - 0.5],
+                     [0.0, 0.0, 1.0]])
+
+
+def fuse_open3d_blocks(cameras, depths, colours, resolution: int):
+    """open3d's sparse VoxelBlockGrid: each view allocates the blocks near its surface and fuses those."""
+    import open3d as o3d
+    import open3d.core as o3c
+
+    voxel = (BOX[1][0] - BOX[0][0]) / resolution
+    grid = o3d.t.geometry.VoxelBlockGrid(
+        attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+        attr_channels=((1), (1), (3)), voxel_size=voxel, block_resolution=8, block_count=100_000,
+        device=o3c.Device("CPU:0"),
+    )
+    world_to_camera = cameras.world_to_camera().double().numpy()
+    for index, (depth, colour) in enumerate(zip(depths, colours)):
+        intrinsic = o3c.Tensor(_intrinsics(cameras, index))
+        extrinsic = o3c.Tensor(world_to_camera[index])
+        depth_image = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(depth)))
+        colour_image = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(colour.astype(np.float32))))
+        blocks = grid.compute_unique_block_coordinates(depth_image, intrinsic, extrinsic, 1.0, 100.0,
+                                                       trunc_voxel_multiplier=TRUNCATION_VOXELS)
+        grid.integrate(blocks, depth_image, colour_image, intrinsic, intrinsic, extrinsic, 1.0, 100.0,
+                       trunc_voxel_multiplier=TRUNCATION_VOXELS)
+    return grid
+
+
+def legacy_scalable_vertices(cameras, depths, colours, resolution: int) -> int:
+    """Vertices of the mesh open3d's legacy ScalableTSDFVolume makes of the same depth maps."""
     import open3d as o3d
 
+    voxel = (BOX[1][0] - BOX[0][0]) / resolution
     volume = o3d.pipelines.integration.ScalableTSDFVolume(
-        voxel_length=0.02, sdf_trunc=0.08, color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8)
-    intrinsic = o3d.camera.PinholeCameraIntrinsic(100, 100, 100.0, 100.0, 49.5, 49.5)
-    volume.integrate(_rgbd(np.full((100, 100), 2.0, np.float32), np.full((100, 100, 3), 0.5, np.float32)),
-                     intrinsic, np.eye(4))
-    return len(volume.extract_point_cloud().points) > 0
+        voxel_length=voxel, sdf_trunc=TRUNCATION_VOXELS * voxel,
+        color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8)
+    world_to_camera = cameras.world_to_camera().double().numpy()
+    for index, (depth, colour) in enumerate(zip(depths, colours)):
+        height, width = depth.shape
+        k = _intrinsics(cameras, index)
+        intrinsic = o3d.camera.PinholeCameraIntrinsic(width, height, k[0, 0], k[1, 1], k[0, 2], k[1, 2])
+        volume.integrate(_rgbd(depth, colour), intrinsic, world_to_camera[index])
+    return len(volume.extract_triangle_mesh().vertices)
 
 
 def cube_distance_in_voxels(vertices: np.ndarray, resolution: int) -> tuple[float, float]:
@@ -105,29 +138,38 @@ def main() -> int:
 
     record = Record("tsdf", "TSDF fusion against open3d on the same depth maps", issue="14",
                     about="The synthetic cube's exact depth maps fused over [-1, 1]^3 at "
-                          f"{args.resolution}^3, truncation 4 voxels, by pointfield (PyTorch, dense, "
-                          f"CPU) and open3d {o3d.__version__}'s UniformTSDFVolume, interleaved in one "
-                          "run; meshes from each one's marching cubes, compared with the true cube surface.")
-    works = scalable_volume_works()
-    record.figures["open3d_scalable_volume_works"] = works
-    record.note(f"open3d ScalableTSDFVolume fuses a flat depth map into points here: {works}.")
+                          f"{args.resolution}^3, truncation 4 voxels, by pointfield (PyTorch, sparse voxel "
+                          f"blocks, CPU) and open3d {o3d.__version__}'s VoxelBlockGrid (sparse) and "
+                          "UniformTSDFVolume (dense), interleaved in one run; meshes from each one's "
+                          "marching cubes, compared with the true cube surface.")
+    contenders = {"pointfield": fuse_pointfield, "open3d VoxelBlockGrid": fuse_open3d_blocks,
+                  "open3d UniformTSDFVolume": fuse_open3d}
+    meshers = {
+        "pointfield": lambda volume: mesh_from_volume(volume).points,
+        "open3d VoxelBlockGrid": lambda grid: grid.extract_triangle_mesh(weight_threshold=0.0).vertex.positions.numpy(),
+        "open3d UniformTSDFVolume": lambda volume: np.asarray(volume.extract_triangle_mesh().vertices),
+    }
     rows = []
     for views, size in ((24, 100), (8, 800)):
         cameras, depths, colours = cube_views(views, size)
         timings = interleaved({
-            "pointfield": lambda c=cameras, d=depths, k=colours: fuse_pointfield(c, d, k, args.resolution),
-            "open3d": lambda c=cameras, d=depths, k=colours: fuse_open3d(c, d, k, args.resolution),
+            name: lambda f=fuse, c=cameras, d=depths, k=colours: f(c, d, k, args.resolution)
+            for name, fuse in contenders.items()
         }, repeats=args.repeats)
-        ours = mesh_from_volume(fuse_pointfield(cameras, depths, colours, args.resolution)).points
-        theirs = np.asarray(fuse_open3d(cameras, depths, colours, args.resolution).extract_triangle_mesh().vertices)
-        for name, vertices in (("pointfield", ours), ("open3d", theirs)):
+        for name, fuse in contenders.items():
+            vertices = meshers[name](fuse(cameras, depths, colours, args.resolution))
             median, p95 = cube_distance_in_voxels(vertices, args.resolution) if len(vertices) else (np.nan, np.nan)
             rows.append([f"{size}x{size}", views, name, f"{views / timings[name].median:.2f}",
                          f"{timings[name].median:.2f}", f"{timings[name].spread:.2f}", f"{median:.2f}", f"{p95:.2f}"])
         record.figures[f"{size}"] = {name: timings[name].as_dict() for name in timings}
-        ratio = timings["open3d"].median / timings["pointfield"].median
-        record.note(f"{size}x{size}: pointfield fuses at {ratio:.2f}x open3d's speed "
-                    f"({timings['pointfield'].median:.2f} s against {timings['open3d'].median:.2f} s for {views} maps).")
+        ours = timings["pointfield"].median
+        record.note(f"{size}x{size}: pointfield fuses at "
+                    + ", ".join(f"{timings[name].median / ours:.2f}x {name}'s speed" for name in contenders if name != "pointfield")
+                    + f" ({ours:.2f} s for {views} maps).")
+        if size == 100:
+            legacy = legacy_scalable_vertices(cameras, depths, colours, args.resolution)
+            record.figures["open3d_legacy_scalable_vertices"] = legacy
+            record.note(f"open3d's legacy ScalableTSDFVolume makes a mesh of {legacy} vertices of the same 24 maps.")
     record.table(["depth maps", "views", "library", "maps per s", "median s", "spread",
                   "median distance (voxels)", "95th pct distance (voxels)"], rows,
                  title=f"Fusing the cube's exact depth at {args.resolution}^3 (2 cores)")

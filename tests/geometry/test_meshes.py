@@ -15,7 +15,7 @@ from pointfield.geometry.meshes import (
     mesh_from_volume,
     write_mesh,
 )
-from pointfield.geometry.tsdf import TSDFVolume
+from pointfield.geometry.tsdf import TSDFVolume, fuse
 from pointfield.scenes import synthetic_scene
 
 
@@ -23,11 +23,11 @@ from pointfield.scenes import synthetic_scene
 def fused_cube() -> TSDFVolume:
     """The synthetic cube's exact depth maps (24 views of 64 px) fused over [-1, 1]^3 at 64^3."""
     scene = synthetic_scene("cube", views=24, size=64)
-    volume = TSDFVolume.create([-1, -1, -1], [1, 1, 1], 64)
-    for index in range(len(scene)):
-        volume.integrate(torch.from_numpy(scene.depth(index)), torch.from_numpy(scene.image(index)),
-                         scene.cameras, index)
-    return volume
+    return fuse(TSDFVolume.create([-1, -1, -1], [1, 1, 1], 64), cube_views(scene), scene.cameras)
+
+
+def cube_views(scene):
+    return [(torch.from_numpy(scene.depth(i)), torch.from_numpy(scene.image(i))) for i in range(len(scene))]
 
 
 def test_fusing_the_cubes_exact_depth_gives_the_cube(fused_cube):
@@ -46,6 +46,32 @@ def test_fusing_the_cubes_exact_depth_gives_the_cube(fused_cube):
     assert red > 2 * green and red > 2 * blue
 
 
+def test_only_blocks_near_the_surface_are_stored_and_view_order_does_not_matter(fused_cube):
+    # the cube's shell of 8^3 blocks is a small part of the grid
+    assert 0 < fused_cube.allocated_fraction < 0.5
+    scene = synthetic_scene("cube", views=24, size=64)
+    order = list(reversed(range(len(scene))))
+    reversed_volume = fuse(TSDFVolume.create([-1, -1, -1], [1, 1, 1], 64),
+                           [cube_views(scene)[i] for i in order], scene.cameras[order])
+    forward_tsdf, forward_observed = fused_cube.dense()
+    reversed_tsdf, reversed_observed = reversed_volume.dense()
+    np.testing.assert_array_equal(forward_observed, reversed_observed)
+    np.testing.assert_allclose(forward_tsdf, reversed_tsdf, atol=1e-5)
+
+
+def test_a_floater_seen_by_one_view_is_carved_by_the_others():
+    scene = synthetic_scene("cube", views=24, size=64)
+    views = cube_views(scene)
+    depth, colour = views[0]
+    floating = depth.clone()
+    floating[28:36, 28:36] = depth[depth > 0].min() - 0.6  # a patch hanging 0.6 in front of the cube
+    views[0] = (floating, colour)
+    volume = fuse(TSDFVolume.create([-1, -1, -1], [1, 1, 1], 64), views, scene.cameras)
+    vertices = mesh_from_volume(volume).points
+    distance_to_surface = np.abs(np.abs(vertices).max(axis=1) - 0.5)
+    assert distance_to_surface.max() < 3 * volume.voxel
+
+
 def test_decimation_and_every_file_format(fused_cube, tmp_path):
     mesh = mesh_from_volume(fused_cube)
     small = decimate(mesh, 500)
@@ -61,6 +87,10 @@ def test_decimation_and_every_file_format(fused_cube, tmp_path):
 def test_a_grid_too_large_says_how_much_it_needs_and_what_fits():
     with pytest.raises(PointfieldError, match=r"needs .* GiB, .* pass --resolution \d+ or less"):
         TSDFVolume.create([0, 0, 0], [1, 1, 1], 1024, memory_limit=1 << 30)
+    scene = synthetic_scene("cube", views=2, size=64)
+    volume = TSDFVolume.create([-1, -1, -1], [1, 1, 1], 64, memory_limit=2 << 20)
+    with pytest.raises(PointfieldError, match=r"allocated voxels would need .* GiB"):
+        fuse(volume, cube_views(scene), scene.cameras)
 
 
 def test_export_mesh_of_a_run_through_the_command_line(splat_run, tmp_path, capsys):

@@ -31,7 +31,7 @@ import torch
 from pointfield.clouds.mesh import Mesh
 from pointfield.errors import PointfieldError
 from pointfield.geometry.clouds import _scene_run, cameras_of
-from pointfield.geometry.tsdf import TSDFVolume
+from pointfield.geometry.tsdf import TSDFVolume, fuse
 
 MESH_SUFFIXES = (".ply", ".off", ".obj", ".glb")
 DEFAULT_MEMORY_FRACTION = 0.5
@@ -42,8 +42,7 @@ def mesh_from_volume(volume: TSDFVolume, min_component: float = 0.01) -> Mesh:
     """Marching cubes on the TSDF's zero level; vertex ``colors`` uint8; small components dropped."""
     from skimage.measure import marching_cubes
 
-    tsdf = volume.tsdf.cpu().numpy()
-    observed = volume.weight.cpu().numpy() > 0
+    tsdf, observed = volume.dense()
     if tsdf.min() >= 0 or tsdf.max() <= 0:
         raise PointfieldError("the fused depth holds no surface (no voxel is behind one); nothing to mesh")
     vertices, faces, _, _ = marching_cubes(tsdf, level=0.0, allow_degenerate=False)
@@ -151,12 +150,14 @@ def export_mesh(
         low, high, resolution, truncation_voxels=truncation_voxels, device=scene_run.device,
         memory_limit=memory_limit if memory_limit is not None else _default_memory_limit(),
     )
-    for index in tqdm(range(len(cameras)), desc="fusing", unit="view", disable=not progress):
+    views = []
+    for index in tqdm(range(len(cameras)), desc="rendering", unit="view", disable=not progress):
         view = scene_run.render(cameras[[index]])[0]
         rays = cameras.rays(index)
         z_depth = view["depth"].to(rays.axis_cosine) * rays.axis_cosine
         z_depth = torch.where(view["opacity"].to(z_depth.device) >= min_opacity, z_depth, torch.zeros_like(z_depth))
-        volume.integrate(z_depth, view["rgb"], cameras, index)
+        views.append((z_depth.float(), view["rgb"]))
+    fuse(volume, views, cameras)
     mesh = mesh_from_volume(volume, min_component)
     fused_faces = len(mesh.faces)
     if faces is not None:
