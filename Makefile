@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf clean
+.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -35,7 +35,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf
+bench: bench-formats bench-fuzz bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -67,6 +67,9 @@ bench-march: $(BIN)/.installed
 
 bench-tsdf: $(BIN)/.open3d
 	$(BIN)/python benchmarks/bench_tsdf.py
+
+bench-geometry: $(BIN)/.open3d
+	$(BIN)/python benchmarks/bench_geometry.py
 
 bench-sfm: $(BIN)/.colmap
 	$(BIN)/python benchmarks/bench_sfm.py

@@ -48,8 +48,9 @@ def test_every_scene_run_renders_cameras_the_same_way(runs, name):
     views = run.render(cameras)
     assert len(views) == 2
     for view in views:
-        assert set(view) == {"rgb", "depth", "opacity"}
-        assert view["rgb"].shape == (12, 12, 3) and view["depth"].shape == view["opacity"].shape == (12, 12)
+        assert set(view) == {"rgb", "depth", "median_depth", "opacity"}
+        assert view["rgb"].shape == (12, 12, 3)
+        assert view["depth"].shape == view["median_depth"].shape == view["opacity"].shape == (12, 12)
         assert float(view["rgb"].min()) >= 0 and float(view["rgb"].max()) <= 1
         assert float(view["opacity"].min()) >= 0 and float(view["opacity"].max()) <= 1
         assert bool(torch.isfinite(view["depth"]).all())

@@ -48,9 +48,10 @@ def test_render_in_chunks_matches_one_pass():
     rays = _rays(10)
     whole = model(rays, torch.ones(3)).final
     chunked = render_in_chunks(model, rays, torch.ones(3), chunk=3)
-    assert set(chunked) == {"rgb", "depth", "opacity"} and not chunked["rgb"].requires_grad
+    assert set(chunked) == {"rgb", "depth", "median_depth", "opacity"} and not chunked["rgb"].requires_grad
     torch.testing.assert_close(chunked["rgb"], whole.color.detach())
     torch.testing.assert_close(chunked["depth"], whole.depth.detach())
+    torch.testing.assert_close(chunked["median_depth"], whole.median_depth)
     torch.testing.assert_close(chunked["opacity"], whole.opacity.detach())
 
 

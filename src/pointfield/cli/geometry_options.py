@@ -15,8 +15,14 @@ def add_cloud_options(parser: argparse.ArgumentParser) -> None:
                         help="write a point cloud of rendered depth (any format pointfield writes: .ply, .pcd, .las, ...)")
     parser.add_argument("--mesh", type=Path, metavar="OUT",
                         help="write a mesh: rendered depth fused into a TSDF, marching cubes (.ply, .off, .obj, .glb)")
+    parser.add_argument("--method", choices=("tsdf", "density"), default="tsdf",
+                        help="mesh: tsdf (default: fuse rendered depth; any run) or density (marching cubes on "
+                        "the field's density; field runs of a bounded scene, such as ngp on an object)")
+    parser.add_argument("--threshold", type=float,
+                        help="mesh, density: the density level of the surface (default: 2.5 / the field box's "
+                        "longest side, instant-ngp's level)")
     parser.add_argument("--resolution", type=int, default=256,
-                        help="mesh: TSDF voxels along the box's longest side (default 256)")
+                        help="mesh: voxels along the box's longest side (default 256)")
     parser.add_argument("--faces", type=int, help="mesh: decimate to at most this many triangles")
     parser.add_argument("--path", choices=("dataset", "orbit", "spiral"), default="dataset",
                         help="cameras to render from (default: the run's training views)")
@@ -38,13 +44,14 @@ def export_geometry_of(args: argparse.Namespace) -> None:
 
     if args.mesh is not None:
         result = export_mesh(
-            args.run_dir, args.mesh, resolution=args.resolution, path=args.path, frames=args.frames,
-            min_opacity=args.min_opacity, crop=args.crop, faces=args.faces, device=args.device,
-            progress=args.progress,
+            args.run_dir, args.mesh, resolution=args.resolution, method=args.method, threshold=args.threshold,
+            path=args.path, frames=args.frames, min_opacity=args.min_opacity, crop=args.crop, faces=args.faces,
+            device=args.device, progress=args.progress,
         )
         grid = "x".join(map(str, result["grid"]))
-        print(f"wrote {result['faces']:,} faces, {result['vertices']:,} vertices (TSDF {grid} over the "
-              f"{result['box_source']}, {result['views']} views) to {result['out']}")
+        how = (f"density {grid} at {result['threshold']:.3g} over the {result['box_source']}"
+               if args.method == "density" else f"TSDF {grid} over the {result['box_source']}, {result['views']} views")
+        print(f"wrote {result['faces']:,} faces, {result['vertices']:,} vertices ({how}) to {result['out']}")
     if args.cloud is None:
         return
     result = export_cloud(
@@ -54,3 +61,9 @@ def export_geometry_of(args: argparse.Namespace) -> None:
     )
     print(f"wrote {result['points']:,} points (of {result['rendered_points']:,} rendered from "
           f"{result['views']} views) to {result['out']}")
+
+
+def opacity_error_text(metrics: dict) -> str:
+    """``"opacity error 0.0123, "`` for a run scored against alpha, else nothing."""
+    error = metrics.get("opacity_error")
+    return f"opacity error {error:.4f}, " if error is not None and error == error else ""

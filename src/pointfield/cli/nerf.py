@@ -12,7 +12,7 @@ import argparse
 import json
 from pathlib import Path
 
-from pointfield.cli.geometry_options import add_cloud_options, export_geometry_of
+from pointfield.cli.geometry_options import add_cloud_options, export_geometry_of, opacity_error_text
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
 
@@ -43,6 +43,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--holdout-every", type=int, metavar="N",
                        help="hold every N-th training view out for evaluation (for scenes without test views)")
     train.add_argument("--background", help="white, black or 'r,g,b' to composite alpha onto (default: the scene's)")
+    train.add_argument("--random-background", action=argparse.BooleanOptionalAction, default=None,
+                       help="train against a random colour behind each ray, so that opacity matches the images' "
+                            "alpha (default: where the images have alpha)")
     train.add_argument("--eval-every", type=int, metavar="STEPS",
                        help="evaluate on held-out views every STEPS steps (default: every epoch, at most 500)")
     train.add_argument("--lr", dest="learning_rate", type=float,
@@ -66,13 +69,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "render", help="render a trained run along a camera path",
         description="Render colour, depth and opacity along a camera path: orbit (a circle around "
         "the scene), spiral (the orbit swinging up and down) or dataset (the scene's own "
-        "cameras). OUT ending in .gif or .mp4 gets a video of colour | depth | opacity panels; "
-        "anything else is a folder of PNGs.",
+        "cameras). OUT ending in .gif or .mp4 gets a video of colour | depth | opacity panels "
+        "(or of the --outputs asked for); anything else is a folder of PNGs, with depth maps "
+        "(.npy in scene units, 16-bit PNG) for the depth outputs.",
     )
     render.add_argument("run_dir", type=Path, metavar="RUN", help="a run folder from nerf train")
     render.add_argument("--path", choices=("orbit", "spiral", "dataset"), default="orbit", help="camera path (default orbit)")
     render.add_argument("--frames", type=int, help="number of frames (default 60; dataset: every camera)")
     render.add_argument("--out", type=Path, default=Path("render.gif"), help="x.gif, x.mp4 or a folder (default render.gif)")
+    render.add_argument("--outputs", nargs="+", metavar="OUTPUT",
+                        help="what to write: rgb, depth (expected), median_depth, opacity (default: rgb depth "
+                             "opacity); into a folder, depth outputs also come as .npy and 16-bit PNG depth "
+                             "maps with their scale in depth_scale.json")
     render.add_argument("--device", help=DEVICE_HELP)
     render.set_defaults(run=run_render)
 
@@ -80,7 +88,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "export", help="geometry from a trained run: a point cloud or a mesh of rendered depth",
         description="Render the run from the training views (or an orbit) and back-project every "
         "pixel opaque enough into a point with its colour and normal; crop, drop stray points, thin, "
-        "and write any point-cloud format.",
+        "and write any point-cloud format. --mesh fuses the rendered depth into a mesh, or with "
+        "--method density meshes the field's density itself (a bounded scene: an object in a box).",
     )
     export.add_argument("run_dir", type=Path, metavar="RUN", help="a run folder from nerf train")
     add_cloud_options(export)
@@ -109,12 +118,12 @@ def run_train(args: argparse.Namespace) -> int:
     metrics = train(
         args.scene, model=args.model, out=args.out, steps=args.steps, max_time=args.max_time,
         batch_rays=args.batch_rays, downscale=args.downscale, holdout_every=args.holdout_every,
-        background=background, device=args.device, seed=args.seed, resume=args.resume,
+        background=background, random_background=args.random_background, device=args.device, seed=args.seed, resume=args.resume,
         eval_every=args.eval_every, learning_rate=args.learning_rate, progress=args.progress,
         scene_box=[float(v) for v in args.scene_box.split(",")] if "," in args.scene_box else args.scene_box,
     )
-    print(f"nerf run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f} "
-          f"({metrics['steps']} steps, {metrics['seconds']:.0f} s); see {args.out / 'metrics.json'}")
+    print(f"nerf run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
+          f"{opacity_error_text(metrics)}({metrics['steps']} steps, {metrics['seconds']:.0f} s); see {args.out / 'metrics.json'}")
     return 0
 
 
@@ -141,8 +150,10 @@ def run_export(args: argparse.Namespace) -> int:
 
 def run_render(args: argparse.Namespace) -> int:
     from pointfield.fields.run import render
+    from pointfield.viz.views import PANELS
 
-    result = render(args.run_dir, path=args.path, frames=args.frames, out=args.out, device=args.device)
+    result = render(args.run_dir, path=args.path, frames=args.frames, out=args.out, device=args.device,
+                    outputs=args.outputs or PANELS)
     print(f"wrote {result['frames']} frames ({result['path']}) to {result['out']}")
     return 0
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pointfield.cli.geometry_options import add_cloud_options, export_geometry_of
+from pointfield.cli.geometry_options import add_cloud_options, export_geometry_of, opacity_error_text
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
 DEFAULT_MAX_SPLATS = 200_000  # pointfield.splats.train.DEFAULT_MAX_SPLATS, without importing torch
@@ -37,6 +37,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--holdout-every", type=int, metavar="N",
                        help="hold every N-th training view out for evaluation (for scenes without test views)")
     train.add_argument("--background", help="white, black or 'r,g,b' to composite alpha onto (default: the scene's)")
+    train.add_argument("--alpha-loss", type=float, default=None, metavar="WEIGHT",
+                       help="weight of |rendered opacity - alpha| in the loss where the images have alpha "
+                            "(default 0.1; 0: off)")
     train.add_argument("--max-splats", type=int, default=DEFAULT_MAX_SPLATS,
                        help=f"densification never grows beyond this many splats (default {DEFAULT_MAX_SPLATS:,})")
     train.add_argument("--initial-splats", type=int, default=20_000,
@@ -56,7 +59,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "the scene), spiral (the orbit swinging up and down) or dataset (the scene's own "
         "cameras). SOURCE is a run folder from splat train or any standard splat .ply (which "
         "needs --scene for its cameras). OUT ending in .gif or .mp4 gets a video of colour | "
-        "depth | alpha panels; anything else is a folder of PNGs.",
+        "depth | alpha panels (or of the --outputs asked for); anything else is a folder of PNGs, "
+        "with depth maps (.npy in scene units, 16-bit PNG) for the depth outputs.",
     )
     render.add_argument("source", type=Path, metavar="RUN|SPLATS.ply", help="a run folder or a splat .ply")
     render.add_argument("--scene", type=Path, help="scene whose cameras to use (default: the run's)")
@@ -68,6 +72,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     render.add_argument("--rasterizer", choices=("auto", "pointfield", "gsplat"), default="auto",
                         help="pointfield, gsplat (needs gsplat and a CUDA device) or auto: gsplat where it "
                              "can run (default)")
+    render.add_argument("--outputs", nargs="+", metavar="OUTPUT",
+                        help="what to write: rgb, depth (expected), median_depth, opacity (default: rgb depth "
+                             "opacity); into a folder, depth outputs also come as .npy and 16-bit PNG depth "
+                             "maps with their scale in depth_scale.json")
     render.set_defaults(run=run_render)
 
     export = verbs.add_parser(
@@ -89,21 +97,24 @@ def run_train(args: argparse.Namespace) -> int:
         background = [float(value) for value in background.split(",")]
     metrics = train(
         args.scene, out=args.out, steps=args.steps, max_time=args.max_time, downscale=args.downscale,
-        holdout_every=args.holdout_every, background=background, device=args.device, seed=args.seed,
+        holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss, device=args.device,
+        seed=args.seed,
         resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,
         init=args.init, eval_every=args.eval_every, progress=args.progress,
     )
     print(f"splat run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
-          f"{metrics['splats']:,} splats ({metrics['steps']} steps, {metrics['seconds']:.0f} s); "
+          f"{opacity_error_text(metrics)}{metrics['splats']:,} splats ({metrics['steps']} steps, {metrics['seconds']:.0f} s); "
           f"see {args.out / 'metrics.json'}")
     return 0
 
 
 def run_render(args: argparse.Namespace) -> int:
     from pointfield.splats.run import render
+    from pointfield.viz.views import PANELS
 
     result = render(args.source, scene=args.scene, downscale=args.downscale, path=args.path,
-                    frames=args.frames, out=args.out, device=args.device, rasterizer=args.rasterizer)
+                    frames=args.frames, out=args.out, device=args.device, rasterizer=args.rasterizer,
+                    outputs=args.outputs or PANELS)
     print(f"wrote {result['frames']} frames ({result['path']}, {result['splats']:,} splats, "
           f"{result['rasterizer']} rasterizer) to {result['out']}")
     return 0

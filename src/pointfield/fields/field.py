@@ -119,15 +119,17 @@ def render_in_chunks(
     background: torch.Tensor | None = None,
     chunk: int = 4096,
 ) -> dict[str, torch.Tensor]:
-    """The final pass's ``"rgb"`` ``(R, 3)``, ``"depth"`` ``(R,)`` and ``"opacity"`` ``(R,)`` for many rays.
+    """The final pass's ``"rgb"`` ``(R, 3)``, ``"depth"``, ``"median_depth"`` and ``"opacity"`` ``(R,)``.
 
     Renders ``chunk`` rays at a time without gradients and without jitter, so memory stays
-    bounded and the result is repeatable.
+    bounded and the result is repeatable. ``median_depth`` is
+    :attr:`~pointfield.fields.rendering.RenderedRays.median_depth`.
     """
-    parts: dict[str, list[torch.Tensor]] = {"rgb": [], "depth": [], "opacity": []}
+    parts: dict[str, list[torch.Tensor]] = {"rgb": [], "depth": [], "median_depth": [], "opacity": []}
     for start in range(0, len(rays), chunk):
         rendered = model(rays[start:start + chunk], background).final
         parts["rgb"].append(rendered.color)
         parts["depth"].append(rendered.depth)
+        parts["median_depth"].append(rendered.median_depth)
         parts["opacity"].append(rendered.opacity)
     return {name: torch.cat(values) for name, values in parts.items()}

@@ -9,6 +9,7 @@ rendered without gradients in chunks of :data:`RENDER_CHUNK` rays, at the sample
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from functools import cached_property
 from typing import Any
 
@@ -20,10 +21,11 @@ from pointfield.fields.field import RadianceField, render_in_chunks
 from pointfield.fields.models import MODELS, build_model
 from pointfield.fields.rays import RayBundle
 from pointfield.scenes.cameras import Cameras
-from pointfield.scenes.heldout import View, depth_bounds
+from pointfield.scenes.heldout import OUTPUTS, View, depth_bounds
 from pointfield.scenes.run import SceneRun
 from pointfield.training.lifecycle import open_run, restore_model
 from pointfield.training.run import RunDirectory
+from pointfield.viz.views import PANELS
 
 TASK = "nerf"
 RENDER_CHUNK = 16384
@@ -47,7 +49,11 @@ def render_field(
     model: nn.Module, cameras: Cameras, index: int, near: float, far: float, background: torch.Tensor,
     chunk: int = RENDER_CHUNK,
 ) -> View:
-    """Camera ``index`` rendered by ``model``: ``rgb`` ``(H, W, 3)``, ``depth`` and ``opacity`` ``(H, W)``."""
+    """Camera ``index`` rendered by ``model``: ``rgb`` ``(H, W, 3)``; ``depth``, ``median_depth``, ``opacity`` ``(H, W)``.
+
+    Both depths are distances along the pixel's (unit) ray from the camera centre, in scene units
+    (:data:`pointfield.scenes.heldout.OUTPUTS`).
+    """
     bundle = RayBundle.of_camera(cameras, index, near, far).to(background.device)
     was_training = model.training
     model.eval()
@@ -57,6 +63,7 @@ def render_field(
     return {
         "rgb": out["rgb"].clamp(0, 1).reshape(height, width, 3),
         "depth": out["depth"].reshape(height, width),
+        "median_depth": out["median_depth"].reshape(height, width),
         "opacity": out["opacity"].reshape(height, width),
     }
 
@@ -78,7 +85,8 @@ class FieldRun(SceneRun):
         """Where any camera's rays are marched: the training scene's :func:`~pointfield.scenes.heldout.depth_bounds`."""
         return depth_bounds(self.scene)
 
-    def render_one(self, cameras: Cameras, index: int) -> View:
+    def render_one(self, cameras: Cameras, index: int, outputs: Sequence[str] = OUTPUTS) -> View:
+        # Every output comes from the same pass, at no extra cost: all are rendered.
         return render_field(self.module, cameras, index, *self.marched_between, self.background)
 
 
@@ -94,6 +102,12 @@ def render(
     frames: int | None = None,
     out: str | os.PathLike[str] = "render.gif",
     device: str | None = None,
+    outputs: Sequence[str] = PANELS,
 ) -> dict[str, Any]:
-    """Render a trained run along ``path`` into ``out`` (``.gif``, ``.mp4`` or a folder): ``nerf render``."""
-    return open_run((FieldRun,), run, device).render_path(path, frames=frames, out=out)
+    """Render a trained run along ``path`` into ``out`` (``.gif``, ``.mp4`` or a folder): ``nerf render``.
+
+    ``outputs``: which of :data:`~pointfield.scenes.heldout.OUTPUTS` to write (default colour,
+    depth and opacity); depth outputs written into a folder come as depth maps too
+    (:func:`pointfield.viz.views.write_views`).
+    """
+    return open_run((FieldRun,), run, device).render_path(path, frames=frames, out=out, outputs=outputs)

@@ -60,6 +60,11 @@ from pointfield.scenes.heldout import (
 )
 from pointfield.scenes.scene import Scene
 from pointfield.training import lifecycle
+from pointfield.training.backgrounds import (
+    recomposite,
+    transparency_of,
+    uses_random_background,
+)
 from pointfield.training.loop import TrainingState
 from pointfield.training.run import RunDirectory
 from pointfield.training.task import Step, Task
@@ -112,6 +117,7 @@ class NerfTask(Task):
             "seed": int(settings["seed"]),
             "eval_every": settings["eval_every"],
             "eval_views": int(settings["eval_views"]),
+            "random_background": settings.get("random_background"),
         }
         if config["batch_rays"] < 1 or config["steps"] < 1 or (config["eval_every"] or 1) < 1:
             raise PointfieldError("--batch-rays, --steps and --eval-every must be positive")
@@ -134,6 +140,9 @@ class NerfTask(Task):
         self.model = self.trained = build_field(config, device)
         self.rays, self.colors = scene_rays(self.scene, self.train_frames, device)
         self.background = torch.as_tensor(self.scene.background, dtype=torch.float32, device=device)
+        self.transparency = None
+        if uses_random_background(config.get("random_background"), self.scene, self.train_frames):
+            self.transparency = transparency_of(self.scene, self.train_frames).to(device)
         self.near, self.far = depth_bounds(self.scene)
         self.steps_per_epoch = math.ceil(len(self.rays) / config["batch_rays"])
         self.round_steps = config["eval_every"] or min(self.steps_per_epoch, 500)
@@ -183,8 +192,12 @@ class NerfTask(Task):
         generator = torch.Generator().manual_seed(self.config["seed"] * 1_000_003 + int(step))
         self.model.before_step(int(step), generator)
         indices = self._rays_of_step(int(step), generator)
-        output = self.model(self.rays[indices], self.background, jitter=True)
-        target = self.colors[indices]
+        background, target = self.background, self.colors[indices]
+        if self.transparency is not None:
+            # A random colour behind each ray: opacity must match alpha (training/backgrounds.py).
+            background = torch.rand(len(indices), 3, generator=generator).to(self.device)
+            target = recomposite(target, self.transparency[indices], self.background, background)
+        output = self.model(self.rays[indices], background, jitter=True)
         losses = [torch.mean((rendered.color - target) ** 2) for rendered in output.passes]
         stats = {"psnr": psnr_from_mse(float(losses[-1].detach()))}
         if self.budget is not None:
@@ -197,7 +210,8 @@ class NerfTask(Task):
         keep = self.on_evaluate is not None
         scores, renders = heldout_scores(self.render, self.scene, self.evaluated, keep_renders=keep)
         finished = min((epoch + 1) * self.round_steps, self.config["steps"])
-        record = {"psnr": scores["psnr"], "epochs": finished / self.steps_per_epoch}
+        record = {"psnr": scores["psnr"], "opacity_error": scores["opacity_error"],
+                  "epochs": finished / self.steps_per_epoch}
         if keep:
             self.on_evaluate({**record, "step": finished}, renders)
         return record
@@ -230,6 +244,7 @@ def train(
     downscale: int = 1,
     holdout_every: int | None = None,
     background: str | Sequence[float] | None = None,
+    random_background: bool | None = None,
     device: str | None = None,
     seed: int = 0,
     resume: bool = False,
@@ -251,6 +266,9 @@ def train(
     scored. Without ``scene``, the synthetic cube of ``cube_views`` views of ``cube_size``
     pixels square is rendered and trained on. ``background`` ("white", "black" or an RGB
     triple) replaces the scene's: images' alpha is composited onto it and so is every render.
+    ``random_background`` trains against a random colour behind each ray where the images have
+    alpha (:mod:`pointfield.training.backgrounds`; None: whenever they do), so that the model's
+    opacity matches the images' alpha.
     ``model_options`` go to the model's constructor (``samples`` for tiny,
     ``coarse_samples``/``fine_samples`` for nerf). ``scene_box`` (ngp only; see
     :func:`pointfield.fields.scene_box.scene_bounds`): "auto", "bounded", "unbounded" or six
@@ -262,8 +280,8 @@ def train(
     settings = {
         "scene": scene, "model": model, "model_options": model_options, "steps": steps,
         "batch_rays": batch_rays, "downscale": downscale, "holdout_every": holdout_every,
-        "background": background, "seed": seed, "eval_every": eval_every, "eval_views": eval_views,
-        "learning_rate": learning_rate, "scene_box": scene_box if isinstance(scene_box, str) else list(scene_box),
+        "background": background, "random_background": random_background, "seed": seed,
+        "eval_every": eval_every, "eval_views": eval_views, "learning_rate": learning_rate, "scene_box": scene_box if isinstance(scene_box, str) else list(scene_box),
         "cube_views": cube_views, "cube_size": cube_size,
     }
     return lifecycle.train(NerfTask, settings, options={"on_evaluate": on_evaluate}, out=out, resume=resume,

@@ -125,7 +125,7 @@ def export_cloud(
     cameras = cameras_of(scene_run, path, frames)
     views = []
     for index in tqdm(range(len(cameras)), desc="rendering", unit="view", disable=not progress):
-        views.extend(scene_run.render(cameras[[index]]))
+        views.extend(scene_run.render(cameras[[index]], outputs=("rgb", "depth", "opacity")))
     cloud = cloud_from_views(views, cameras, min_opacity)
     rendered = len(cloud.points)
     if rendered == 0:

@@ -16,6 +16,9 @@
 5. Optionally decimate to ``faces`` triangles (fast-simplification, quadric error), colours
    carried over from the nearest original vertex.
 6. Write PLY or OFF (pointfield's writers), OBJ or GLB (trimesh), atomically.
+
+``method="density"`` replaces steps 1 to 3 for a bounded field run: marching cubes on the field's
+density itself, no view rendered (:mod:`pointfield.geometry.density`).
 """
 
 from __future__ import annotations
@@ -31,9 +34,16 @@ import torch
 from pointfield.clouds.mesh import Mesh
 from pointfield.errors import PointfieldError
 from pointfield.geometry.clouds import _scene_run, cameras_of
-from pointfield.geometry.tsdf import TSDFVolume, fuse
+from pointfield.geometry.density import (
+    default_threshold,
+    density_field,
+    mesh_from_density,
+)
+from pointfield.geometry.tsdf import TSDFVolume, fuse, grid_shape
 
 MESH_SUFFIXES = (".ply", ".off", ".obj", ".glb")
+MESH_METHODS = ("tsdf", "density")
+"""``--method``: fuse rendered depth (any scene run), or marching cubes on a bounded field's density."""
 DEFAULT_MEMORY_FRACTION = 0.5
 """A TSDF grid may take at most this fraction of the machine's memory (the rest is for everything else)."""
 
@@ -113,6 +123,8 @@ def export_mesh(
     out: str | os.PathLike[str],
     *,
     resolution: int = 256,
+    method: str = "tsdf",
+    threshold: float | None = None,
     path: str = "dataset",
     frames: int | None = None,
     min_opacity: float = 0.5,
@@ -126,18 +138,30 @@ def export_mesh(
 ) -> dict[str, Any]:
     """Write the mesh of a trained scene run (module docstring) to ``out``; returns a summary.
 
-    Raises :class:`PointfieldError` for a run that is not a scene run, a grid too large for
-    ``memory_limit`` bytes (default: half the machine's memory; the message says how much it
-    would need and what resolution fits), and a result with no surface.
+    ``method``: "tsdf" (default) fuses rendered depth; "density" meshes a bounded field run's
+    density at ``threshold`` (default :func:`~pointfield.geometry.density.default_threshold`),
+    and ignores the rendering options (``path``, ``frames``, ``min_opacity``,
+    ``truncation_voxels``). Raises :class:`PointfieldError` for a run that is not a scene run
+    (or, for "density", not a bounded field run), a grid too large for ``memory_limit`` bytes
+    (default: half the machine's memory; the message says how much it would need and what
+    resolution fits), and a result with no surface.
     """
-    from tqdm.auto import tqdm
-
     from pointfield.fields.scene_box import scene_bounds
 
     out = Path(out)
     if out.suffix.lower() not in MESH_SUFFIXES:
         raise PointfieldError(f"{out}: a mesh is written as {', '.join(MESH_SUFFIXES)}")
+    if method not in MESH_METHODS:
+        raise PointfieldError(f"the mesh method must be one of {', '.join(MESH_METHODS)}, got {method!r}")
+    if method != "density" and threshold is not None:
+        raise PointfieldError("a density threshold is for --method density; TSDF meshes have none")
     scene_run = _scene_run(run, device)
+    if method == "density":
+        return _export_density_mesh(
+            scene_run, out, resolution=resolution, threshold=threshold, crop=crop, faces=faces,
+            min_component=min_component,
+            memory_limit=memory_limit if memory_limit is not None else _default_memory_limit(), progress=progress,
+        )
     cameras = cameras_of(scene_run, path, frames)
     scene = scene_run.scene
     if crop is not None:
@@ -146,17 +170,14 @@ def export_mesh(
     else:
         (low, high), unbounded = scene_bounds(scene)
         box_source = "region of interest of an unbounded capture" if unbounded else "scene box"
+        # A surface on the box's faces (an object's tight aabb) needs voxels outside it too.
+        pad = (truncation_voxels + 2) * float(np.max(np.subtract(high, low))) / resolution
+        low, high = np.subtract(low, pad), np.add(high, pad)
     volume = TSDFVolume.create(
         low, high, resolution, truncation_voxels=truncation_voxels, device=scene_run.device,
         memory_limit=memory_limit if memory_limit is not None else _default_memory_limit(),
     )
-    views = []
-    for index in tqdm(range(len(cameras)), desc="rendering", unit="view", disable=not progress):
-        view = scene_run.render(cameras[[index]])[0]
-        rays = cameras.rays(index)
-        z_depth = view["depth"].to(rays.axis_cosine) * rays.axis_cosine
-        z_depth = torch.where(view["opacity"].to(z_depth.device) >= min_opacity, z_depth, torch.zeros_like(z_depth))
-        views.append((z_depth.float(), view["rgb"]))
+    views = rendered_depth_maps(scene_run, cameras, min_opacity, progress)
     fuse(volume, views, cameras)
     mesh = mesh_from_volume(volume, min_component)
     fused_faces = len(mesh.faces)
@@ -168,6 +189,47 @@ def export_mesh(
         "views": len(cameras), "grid": list(volume.shape), "voxel": volume.voxel, "box": [list(low), list(high)],
         "box_source": box_source,
     }
+
+
+def _export_density_mesh(scene_run, out: Path, *, resolution, threshold, crop, faces, min_component, memory_limit,
+                         progress) -> dict[str, Any]:
+    """``export_mesh`` with ``method="density"``: the density mesh, floaters dropped, decimated, written."""
+    _, field_box = density_field(scene_run)
+    if crop is not None:
+        low, high = np.asarray(crop[:3], np.float64), np.asarray(crop[3:], np.float64)
+        box_source = "crop"
+    else:
+        (low, high), box_source = field_box, "field's box"
+    threshold = default_threshold(field_box) if threshold is None else threshold
+    shape, voxel = grid_shape(low, high, resolution)
+    mesh = mesh_from_density(scene_run, low, high, resolution, threshold, memory_limit=memory_limit,
+                             progress=progress)
+    mesh = drop_small_components(mesh, min_component)
+    meshed_faces = len(mesh.faces)
+    if faces is not None:
+        mesh = decimate(mesh, faces)
+    write_mesh(out, mesh)
+    return {
+        "out": str(out), "vertices": len(mesh.points), "faces": len(mesh.faces), "meshed_faces": meshed_faces,
+        "threshold": float(threshold), "grid": list(shape), "voxel": voxel, "box": [list(low), list(high)],
+        "box_source": box_source,
+    }
+
+
+def rendered_depth_maps(scene_run, cameras, min_opacity: float = 0.5, progress: bool = True
+                        ) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """``[(z-depth (H, W), colour (H, W, 3))]`` of every camera as the run renders it; 0 depth where
+    the opacity is below ``min_opacity`` (what TSDF fusion takes)."""
+    from tqdm.auto import tqdm
+
+    views = []
+    for index in tqdm(range(len(cameras)), desc="rendering", unit="view", disable=not progress):
+        view = scene_run.render(cameras[[index]], outputs=("rgb", "depth", "opacity"))[0]
+        rays = cameras.rays(index)
+        z_depth = view["depth"].to(rays.axis_cosine) * rays.axis_cosine
+        z_depth = torch.where(view["opacity"].to(z_depth.device) >= min_opacity, z_depth, torch.zeros_like(z_depth))
+        views.append((z_depth.float(), view["rgb"]))
+    return views
 
 
 def _between_observed(vertices: np.ndarray, observed: np.ndarray) -> np.ndarray:

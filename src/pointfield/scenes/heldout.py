@@ -10,8 +10,9 @@ after it and in the benchmarks (:func:`heldout_scores`):
 - SSIM: the mean over views of :func:`pointfield.metrics.ssim` (Gaussian window 11, sigma 1.5).
 
 A model is scored through its renderer, a callable ``render(cameras) -> [view, ...]`` with one
-``{"rgb": (H, W, 3), "depth": (H, W), "opacity": (H, W)}`` dict of tensors per camera -- what
-:meth:`SceneRun.render` gives -- so nothing here knows which model it scores.
+``{"rgb": (H, W, 3), "depth": (H, W), "median_depth": (H, W), "opacity": (H, W)}`` dict of
+tensors per camera (:data:`OUTPUTS`) -- what :meth:`SceneRun.render` gives -- so nothing here
+knows which model it scores.
 """
 
 from __future__ import annotations
@@ -32,14 +33,18 @@ from pointfield.scenes.formats import read_scene
 from pointfield.scenes.scene import Scene, SceneError
 from pointfield.scenes.synthetic import synthetic_scene
 
-OUTPUTS = ("rgb", "depth", "opacity")
-"""What a scene model renders: colour ``(H, W, 3)`` in [0, 1], expected depth ``(H, W)`` along
-the ray in scene units (0 where nothing is hit), accumulated opacity ``(H, W)`` in [0, 1]."""
+OUTPUTS = ("rgb", "depth", "median_depth", "opacity")
+"""What a scene model renders: colour ``(H, W, 3)`` in [0, 1]; expected depth ``(H, W)``, the
+opacity-weighted mean distance along the ray in scene units (0 where nothing is hit); median
+depth ``(H, W)``, the distance along the ray at which the accumulated opacity passes 0.5, in
+scene units (0 where it never does): the surface, where the expected depth of a
+semi-transparent or doubled one falls between the layers; accumulated opacity ``(H, W)`` in
+[0, 1]."""
 
 View = dict[str, torch.Tensor]
 Renderer = Callable[[Cameras], list[View]]
 HeldoutRender = tuple[int, dict[str, np.ndarray], np.ndarray]
-"""``(frame index, {"rgb", "depth", "opacity"} as numpy, ground-truth image)``."""
+"""``(frame index, {output: array} as numpy (:data:`OUTPUTS`), ground-truth image)``."""
 
 
 def open_scene(
@@ -166,17 +171,23 @@ def as_numpy(view: View) -> dict[str, np.ndarray]:
 def heldout_scores(
     render: Renderer, scene: Scene, frames: Sequence[int], keep_renders: bool = False
 ) -> tuple[dict[str, float], list[HeldoutRender]]:
-    """PSNR (mean of per-view PSNR) and mean SSIM of ``render`` over held-out ``frames``.
+    """PSNR (mean of per-view PSNR), mean SSIM and opacity error of ``render`` over held-out ``frames``.
 
-    Returns ``({"psnr", "ssim", "views", "render_seconds_per_view"}, renders)``, with
-    ``renders`` ``[(frame, view arrays, truth)]`` when ``keep_renders`` (else empty). SSIM needs
-    views of at least 11 x 11 pixels; smaller ones give NaN.
+    Returns ``({"psnr", "ssim", "opacity_error", "views", "render_seconds_per_view"}, renders)``,
+    with ``renders`` ``[(frame, view arrays, truth)]`` when ``keep_renders`` (else empty). SSIM
+    needs views of at least 11 x 11 pixels; smaller ones give NaN. ``opacity_error`` is the mean
+    over views of the mean absolute difference between the rendered opacity and the image's
+    alpha (NaN for images without alpha): how far the geometry is from the object's silhouette,
+    which colour alone does not pin down on a background of the object's colour.
     """
-    images, truths, renders = [], [], []
+    images, truths, renders, opacity_errors = [], [], [], []
     started = time.perf_counter()
     for frame in frames:
         view = as_numpy(render(scene.cameras[[int(frame)]])[0])
         truth = scene.image(int(frame))
+        alpha = scene.alpha(int(frame))
+        if alpha is not None:
+            opacity_errors.append(float(np.abs(view["opacity"] - alpha).mean()))
         images.append(view["rgb"])
         truths.append(truth)
         if keep_renders:
@@ -186,6 +197,7 @@ def heldout_scores(
     scores = {
         "psnr": mean_psnr(images, truths),
         "ssim": mean_ssim([images[i] for i in window], [truths[i] for i in window]) if window else math.nan,
+        "opacity_error": float(np.mean(opacity_errors)) if opacity_errors else math.nan,
         "views": len(frames),
         "render_seconds_per_view": seconds / max(len(frames), 1),
     }

@@ -41,7 +41,11 @@ The algorithm, step by step:
    ``alpha_i = min(0.99, o_i exp(-sigma_i))``, skipped when ``alpha_i < 1/255`` or outside
    3 sigma; ``C = sum_i c_i alpha_i T_i`` with ``T_i = prod_{j<i} (1 - alpha_j)``; a pixel stops
    at the first splat that would bring its transmittance below 1e-4 (that splat is not added).
-   Depth is ``sum_i z_i alpha_i T_i`` and alpha ``1 - T_final = sum_i alpha_i T_i``.
+   Depth is ``sum_i z_i alpha_i T_i`` and alpha ``1 - T_final = sum_i alpha_i T_i``. Median
+   depth, when asked for, is the ``z_i`` of the first splat after which the transmittance is
+   0.5 or less (``T_i > 0.5 >= T_{i+1}``: the accumulated alpha reaches one half there), and 0
+   where it never is -- the depth of a surface, where the expected depth of a semi-transparent
+   or doubled one falls between the layers.
 
 Steps 2 to 4 only choose which (pixel, splat) pairs are evaluated; step 5 drops every pair
 that does not count, so the image does not depend on the tiling or the batching.
@@ -72,6 +76,7 @@ import torch.nn.functional as F
 
 from pointfield.compiling import CompiledOrEager
 from pointfield.fields.encodings.spherical_harmonics import sh_to_rgb
+from pointfield.fields.rendering import MEDIAN_OPACITY
 from pointfield.splats.gaussians import quaternion_to_rotation
 
 TILE_SIZE = 4
@@ -186,6 +191,7 @@ def rasterization(
     max_block_elements: int | None = None,
     splats_per_slice: int = 64,
     backend: str = "auto",
+    median_depth: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
     """Render N Gaussians into C cameras; differentiable with respect to every tensor input.
 
@@ -202,7 +208,9 @@ def rasterization(
       and the memory and early-termination granularity of the compositing (they change speed,
       never the result; ``max_block_elements`` defaults to :data:`BLOCK_ELEMENTS` with
       gradients and :data:`BLOCK_ELEMENTS_NO_GRAD` without);
-    - ``backend``: whether rendering compiles its kernels (:mod:`pointfield.compiling`).
+    - ``backend``: whether rendering compiles its kernels (:mod:`pointfield.compiling`);
+    - ``median_depth``: also render the median depth (step 5), into ``meta["median_depths"]``
+      (no gradient; off by default, so that training does not pay for it).
 
     Where no gradient can flow (under ``torch.no_grad()``, or when no input requires one), the
     compositing takes its in-place path, :func:`composite_tiles_no_grad`: the same images, to
@@ -212,8 +220,9 @@ def rasterization(
     Returns ``(colors (C, H, W, D), depths (C, H, W), alphas (C, H, W), meta)``. ``depths`` is
     the alpha-weighted sum of camera z (divide by ``alphas`` for the expected depth). ``meta``
     holds ``means2d`` ``(C, N, 2)`` (call ``retain_grad()`` on it before ``backward`` to get the
-    screen-space gradients densification uses), ``radii`` ``(C, N)`` (0: not visible) and
-    ``depths`` ``(C, N)``.
+    screen-space gradients densification uses), ``radii`` ``(C, N)`` (0: not visible),
+    ``depths`` ``(C, N)``, and with ``median_depth`` ``median_depths`` ``(C, H, W)``: camera z of
+    each pixel's first splat after which its transmittance is 0.5 or less, 0 where none is.
 
     Example::
 
@@ -241,7 +250,7 @@ def rasterization(
     # One (C, N, 2) tensor that the compositing reads from, so its .grad is the screen-space
     # gradient of every camera.
     means2d = torch.stack([p.means2d for p in projections])
-    images, depth_images, alpha_images = [], [], []
+    images, depth_images, alpha_images, median_images = [], [], [], []
     for i, projection in enumerate(projections):
         if sh_degree is not None:
             rotation, translation = viewmats[i, :3, :3], viewmats[i, :3, 3]
@@ -253,19 +262,22 @@ def rasterization(
         if backgrounds is not None:
             background = backgrounds if backgrounds.ndim == 1 else backgrounds[i]
         composite = composite_tiles if differentiable else composite_tiles_no_grad
-        image, depth, alpha = composite(
+        image, depth, alpha, median = composite(
             means2d[i], projection.conics, opacities, view_colors, projection.depths,
             projection.visible, width, height, background, tile_size, max_block_elements,
-            splats_per_slice, backend,
+            splats_per_slice, backend, median_depth,
         )
         images.append(image)
         depth_images.append(depth)
         alpha_images.append(alpha)
+        median_images.append(median)
     meta = {
         "means2d": means2d,
         "radii": torch.stack([p.radii for p in projections]),
         "depths": torch.stack([p.depths for p in projections]),
     }
+    if median_depth:
+        meta["median_depths"] = torch.stack(median_images)
     return torch.stack(images), torch.stack(depth_images), torch.stack(alpha_images), meta
 
 
@@ -396,14 +408,17 @@ def composite_tiles(
     max_block_elements: int = BLOCK_ELEMENTS,
     splats_per_slice: int = 64,
     backend: str = "auto",
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Steps 2 to 5 for one camera, differentiably: ``(colors (H, W, D), depths (H, W), alphas (H, W))``.
+    median_depth: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """Steps 2 to 5 for one camera, differentiably: ``(colors (H, W, D), depths, alphas, median depths)``.
 
     Inputs per splat: ``means2d`` ``(N, 2)``, ``conics`` ``(N, 3)``, ``opacities`` ``(N,)``,
     ``colors`` ``(N, D)``, ``depths`` ``(N,)``, ``visible`` ``(N,)`` bool. Each batch of tiles
     walks its depth-sorted splats ``splats_per_slice`` at a time in ``(tiles, L, pixels)``
     blocks, carrying the transmittance from slice to slice, and drops a tile once every pixel
     of it has stopped (T < 1e-4) -- the early termination of the CUDA rasterizers, per tile.
+    Each image is ``(H, W)`` but colour; the median depths are None unless ``median_depth``,
+    and carry no gradient.
     """
     device, dtype = means2d.device, means2d.dtype
     channels = colors.shape[-1]
@@ -415,12 +430,13 @@ def composite_tiles(
     tile_start = torch.cumsum(per_tile, 0) - per_tile
     offsets = torch.arange(tile_size, device=device, dtype=dtype) + 0.5  # pixel centres in a tile
 
-    batch_tiles, color_blocks, depth_blocks, alpha_blocks = [], [], [], []
+    batch_tiles, color_blocks, depth_blocks, alpha_blocks, median_blocks = [], [], [], [], []
     for tiles, longest in _tile_batches(per_tile, splats_per_slice, pixels_per_tile, max_block_elements):
         count = len(tiles)
         color_sum = torch.zeros(count, pixels_per_tile, channels, device=device, dtype=colors.dtype)
         depth_sum = torch.zeros(count, pixels_per_tile, device=device, dtype=dtype)
         alpha_sum = torch.zeros(count, pixels_per_tile, device=device, dtype=dtype)
+        median_sum = torch.zeros(count, pixels_per_tile, device=device, dtype=dtype) if median_depth else None
         # The front-to-back product so far, per pixel (not stopped at 1e-4: "counted" below
         # compares it with the threshold, which is the same test).
         transmittance = torch.ones(count, pixels_per_tile, device=device, dtype=dtype)
@@ -458,6 +474,12 @@ def composite_tiles(
             color_sum = color_sum.index_add(0, live, torch.einsum("blp,bld->bpd", weights, colors[ids]))
             depth_sum = depth_sum.index_add(0, live, torch.einsum("blp,bl->bp", weights, depths[ids]))
             alpha_sum = alpha_sum.index_add(0, live, weights.sum(1))
+            if median_sum is not None:
+                after = transmittance_after.detach()
+                before = torch.cat([transmittance[live][:, None, :].detach(), after[:, :-1]], dim=1)
+                crossing = (before > 1 - MEDIAN_OPACITY) & (after <= 1 - MEDIAN_OPACITY)    # (B, L, S * S)
+                median_sum = median_sum.index_add(
+                    0, live, torch.einsum("blp,bl->bp", crossing.to(dtype), depths[ids].detach()))
             transmittance = transmittance.index_copy(0, live, transmittance_after[:, -1])
             # Early termination: a tile is finished when its splats are, or its light is.
             more = (per_tile[live_tiles] > first + splats_per_slice) & (
@@ -469,17 +491,22 @@ def composite_tiles(
         color_blocks.append(color_sum)
         depth_blocks.append(depth_sum)
         alpha_blocks.append(alpha_sum)
+        median_blocks.append(median_sum)
 
     tile_count = tiles_x * tiles_y
     color_tiles = colors.new_zeros(tile_count, pixels_per_tile, channels)
     depth_tiles = means2d.new_zeros(tile_count, pixels_per_tile)
     alpha_tiles = means2d.new_zeros(tile_count, pixels_per_tile)
+    median_tiles = means2d.new_zeros(tile_count, pixels_per_tile) if median_depth else None
     if batch_tiles:  # empty tiles stay 0
         filled = torch.cat(batch_tiles)
         color_tiles = color_tiles.index_copy(0, filled, torch.cat(color_blocks))
         depth_tiles = depth_tiles.index_copy(0, filled, torch.cat(depth_blocks))
         alpha_tiles = alpha_tiles.index_copy(0, filled, torch.cat(alpha_blocks))
-    return _images(color_tiles, depth_tiles[..., None], alpha_tiles[..., None], background, tiles_x, width, height)
+        if median_tiles is not None:
+            median_tiles = median_tiles.index_copy(0, filled, torch.cat(median_blocks))
+    return _images(color_tiles, depth_tiles[..., None], alpha_tiles[..., None], background, tiles_x, width, height,
+                   None if median_tiles is None else median_tiles[..., None])
 
 
 def composite_tiles_no_grad(
@@ -496,7 +523,8 @@ def composite_tiles_no_grad(
     max_block_elements: int = BLOCK_ELEMENTS_NO_GRAD,
     splats_per_slice: int = 64,
     backend: str = "auto",
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    median_depth: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
     """:func:`composite_tiles` where no gradient is wanted: the same images, computed in place.
 
     The same arguments, steps and batches; the differences are all for speed. Each slice is a
@@ -533,6 +561,7 @@ def composite_tiles_no_grad(
     offsets = torch.arange(tile_size, device=device, dtype=dtype)[:, None] + 0.5     # (S, 1)
 
     sums = torch.zeros(tiles_x * tiles_y, pixels_per_tile, channels + 2, device=device, dtype=dtype)
+    medians = torch.zeros(tiles_x * tiles_y, pixels_per_tile, 1, device=device, dtype=dtype) if median_depth else None
     for tiles, longest in _tile_batches(per_tile, splats_per_slice, pixels_per_tile, max_block_elements):
         slots = min(splats_per_slice, longest)
         pixel_x = (tiles % tiles_x * tile_size).to(dtype)[:, None, None] + offsets      # (B, S, 1)
@@ -568,6 +597,15 @@ def composite_tiles_no_grad(
             F.threshold_(scan.cumprod_(2), light_left, 0.0)
             weights.mul_(scan[..., 1:])
             sums.index_add_(0, live_tiles, torch.bmm(weights, rows[..., 6:]))
+            if medians is not None:
+                # T never rises: in a slice that takes it from above 0.5 to 0.5 or below, the splats
+                # after which it is still above come first, and the one after them crosses. (Zeroing
+                # T below 1e-4 moves no crossing: alpha <= 0.99 takes T from above 0.5 to >= 0.005.)
+                half = 1 - MEDIAN_OPACITY
+                still_above = (scan[..., 1:] > half).sum(dim=2)                              # (B, S * S)
+                crosses = (scan[..., 0] > half) & (scan[..., -1] <= half)
+                crossing_z = rows[..., -2].gather(1, still_above.clamp_max_(slots - 1))
+                medians.index_add_(0, live_tiles, torch.where(crosses, crossing_z, 0.0)[..., None])
             transmittance[live] = scan[..., -1:]
             # Early termination: a tile is finished when its splats are, or its light is.
             more = (per_tile[live_tiles] > first + slots) & (scan[:, :, -1] > 0).any(1)
@@ -575,7 +613,7 @@ def composite_tiles_no_grad(
             if len(live) == 0:
                 break
 
-    return _images(*sums.split([channels, 1, 1], dim=-1), background, tiles_x, width, height)
+    return _images(*sums.split([channels, 1, 1], dim=-1), background, tiles_x, width, height, medians)
 
 
 def _tile_batches(
@@ -603,10 +641,10 @@ def _tile_batches(
 
 def _images(
     color_tiles: torch.Tensor, depth_tiles: torch.Tensor, alpha_tiles: torch.Tensor, background: torch.Tensor | None,
-    tiles_x: int, width: int, height: int,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Per-tile sums ``(tiles, S * S, D)``, ``(tiles, S * S, 1)`` x 2 -> colour over the background,
-    depth and alpha images ``(H, W, D)``, ``(H, W)``, ``(H, W)``."""
+    tiles_x: int, width: int, height: int, median_tiles: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """Per-tile sums ``(tiles, S * S, D)``, ``(tiles, S * S, 1)`` x 2 (and median depths, or None)
+    -> colour over the background, depth, alpha and median depth images ``(H, W, D)``, ``(H, W)`` x 3."""
     tile_size = math.isqrt(color_tiles.shape[1])
     tiles_y = color_tiles.shape[0] // tiles_x
     if background is not None:
@@ -614,7 +652,8 @@ def _images(
     image = _untile(color_tiles, tiles_x, tiles_y, tile_size, color_tiles.shape[-1])[:height, :width]
     depth = _untile(depth_tiles, tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
     alpha = _untile(alpha_tiles, tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
-    return image, depth, alpha
+    median = None if median_tiles is None else _untile(median_tiles, tiles_x, tiles_y, tile_size, 1)[:height, :width, 0]
+    return image, depth, alpha, median
 
 
 def _untile(values: torch.Tensor, tiles_x: int, tiles_y: int, tile_size: int, channels: int) -> torch.Tensor:

@@ -8,12 +8,14 @@
 :class:`SplatRun` is what :func:`pointfield.load_run` opens for a splat run; it renders any
 camera as every scene run does (:class:`~pointfield.scenes.run.SceneRun`). Depth is the
 expected depth of the covered part of each pixel (the rasterizer's alpha-weighted depth over
-its alpha), as for the fields.
+its alpha), as for the fields; median depth is the depth of the splat at which the pixel's
+accumulated alpha reaches one half. Both are distances along the pixel's ray.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +24,7 @@ import torch
 from pointfield.devices import pick_device
 from pointfield.errors import PointfieldError
 from pointfield.scenes.cameras import Cameras
-from pointfield.scenes.heldout import View, open_scene
+from pointfield.scenes.heldout import OUTPUTS, View, open_scene
 from pointfield.scenes.run import SceneRun, render_path
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
 from pointfield.splats.gsplat_rasterizer import choose_rasterizer, rasterization_gsplat
@@ -31,6 +33,7 @@ from pointfield.splats.rasterizer import rasterization
 from pointfield.training.checkpoints import load_checkpoint
 from pointfield.training.lifecycle import open_run
 from pointfield.training.run import RunDirectory
+from pointfield.viz.views import PANELS
 
 TASK = "splat"
 
@@ -48,42 +51,54 @@ def camera_matrices(cameras: Cameras, device: torch.device) -> tuple[torch.Tenso
 def render_views(
     gaussians: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int,
     background: torch.Tensor, sh_degree: int | None = None, rasterizer: str = "pointfield",
+    median_depth: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
     """Render ``gaussians`` into cameras: ``(colors (C, H, W, 3), depths, alphas, meta)``.
 
     ``rasterizer``: "pointfield" (:func:`~pointfield.splats.rasterizer.rasterization`), "gsplat"
-    or "auto" (:mod:`pointfield.splats.gsplat_rasterizer`).
+    or "auto" (:mod:`pointfield.splats.gsplat_rasterizer`). ``median_depth``: also
+    ``meta["median_depths"]`` ``(C, H, W)`` (camera z, as the rasterizer gives it); gsplat
+    renders none, so with gsplat pointfield's rasterizer renders it, in a second pass.
     """
     chosen = choose_rasterizer(rasterizer, gaussians.means.device)
-    return (rasterization_gsplat if chosen == "gsplat" else rasterization)(
-        gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities,
-        gaussians.sh_coefficients, viewmats, Ks, width, height,
-        sh_degree=gaussians.active_sh_degree if sh_degree is None else sh_degree,
-        backgrounds=background,
-    )
+    splats = (gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities, gaussians.sh_coefficients)
+    options = {"sh_degree": gaussians.active_sh_degree if sh_degree is None else sh_degree, "backgrounds": background}
+    if chosen == "pointfield":
+        return rasterization(*splats, viewmats, Ks, width, height, **options, median_depth=median_depth)
+    colors, depths, alphas, meta = rasterization_gsplat(*splats, viewmats, Ks, width, height, **options)
+    if median_depth:
+        meta["median_depths"] = rasterization(*splats, viewmats, Ks, width, height, **options,
+                                              median_depth=True)[3]["median_depths"]
+    return colors, depths, alphas, meta
 
 
 @torch.no_grad()
 def render_camera(
-    gaussians: Gaussians, cameras: Cameras, index: int, background: torch.Tensor, rasterizer: str = "pointfield"
+    gaussians: Gaussians, cameras: Cameras, index: int, background: torch.Tensor, rasterizer: str = "pointfield",
+    outputs: Sequence[str] = OUTPUTS,
 ) -> View:
-    """Camera ``index`` rendered: ``rgb`` ``(H, W, 3)``, expected ``depth`` and ``opacity`` ``(H, W)``.
+    """Camera ``index`` rendered: ``rgb`` ``(H, W, 3)``, expected ``depth`` and ``opacity`` ``(H, W)``,
+    and ``median_depth`` ``(H, W)`` where ``outputs`` asks for it.
 
     The rasterizer blends each splat's camera z; depth is reported, as for every scene model, as
-    the distance along the pixel's ray: expected z divided by the cosine between the ray and the
-    optical axis.
+    the distance along the pixel's ray: camera z (expected, or the median splat's) divided by
+    the cosine between the ray and the optical axis.
     """
     device = gaussians.means.device
     viewmats, Ks = camera_matrices(cameras[[index]], device)
     width, height = int(cameras.width[index]), int(cameras.height[index])
-    colors, depths, alphas, _ = render_views(gaussians, viewmats, Ks, width, height, background,
-                                             rasterizer=rasterizer)
+    median = "median_depth" in outputs
+    colors, depths, alphas, meta = render_views(gaussians, viewmats, Ks, width, height, background,
+                                                rasterizer=rasterizer, median_depth=median)
     axis_cosine = cameras.rays(index).axis_cosine.to(device, depths.dtype)
-    return {
+    view = {
         "rgb": colors[0].clamp(0, 1),
         "depth": depths[0] / alphas[0].clamp_min(1e-6) / axis_cosine,
         "opacity": alphas[0].clamp(0, 1),
     }
+    if median:
+        view["median_depth"] = meta["median_depths"][0] / axis_cosine
+    return view
 
 
 class SplatRun(SceneRun):
@@ -116,8 +131,8 @@ class SplatRun(SceneRun):
     def gaussians(self) -> Gaussians:
         return self.module
 
-    def render_one(self, cameras: Cameras, index: int) -> View:
-        return render_camera(self.gaussians, cameras, index, self.background, self.rasterizer)
+    def render_one(self, cameras: Cameras, index: int, outputs: Sequence[str] = OUTPUTS) -> View:
+        return render_camera(self.gaussians, cameras, index, self.background, self.rasterizer, outputs)
 
 
 def export(run: str | os.PathLike[str], out: str | os.PathLike[str]) -> dict[str, Any]:
@@ -157,20 +172,22 @@ def render(
     out: str | os.PathLike[str] = "render.gif",
     device: str | None = None,
     rasterizer: str = "auto",
+    outputs: Sequence[str] = PANELS,
 ) -> dict[str, Any]:
     """Render a run folder or a splat ``.ply`` along a camera path into ``out``.
 
     ``path``: orbit, spiral or dataset (:mod:`pointfield.scenes.paths`). A run uses the scene
     it was trained on unless ``scene`` is given; a ``.ply`` needs ``scene`` for its cameras (at
-    ``downscale``). ``out`` ending in ``.gif`` / ``.mp4`` gets a video of colour | depth |
-    opacity panels, anything else a folder of PNGs. ``rasterizer``: "pointfield", "gsplat" or
-    "auto" (gsplat where it can run).
+    ``downscale``). ``out`` ending in ``.gif`` / ``.mp4`` gets a video of panels of ``outputs``
+    (default colour | depth | opacity), anything else a folder of PNGs, with depth maps as
+    ``.npy`` and 16-bit PNG files too (:func:`pointfield.viz.views.write_views`).
+    ``rasterizer``: "pointfield", "gsplat" or "auto" (gsplat where it can run).
     """
     source = Path(source)
     if source.is_dir():
         opened = open_run((SplatRun,), source, device)
         opened.rasterizer = choose_rasterizer(rasterizer, opened.device)
-        result = opened.render_path(path, frames=frames, out=out, scene=scene, downscale=downscale)
+        result = opened.render_path(path, frames=frames, out=out, scene=scene, downscale=downscale, outputs=outputs)
         return {**result, "splats": len(opened.gaussians), "rasterizer": opened.rasterizer}
     if scene is None:
         raise PointfieldError(f"{source}: a splat file has no cameras; pass --scene SCENE to render it")
@@ -180,8 +197,9 @@ def render(
     around = open_scene(scene, downscale)
     background = torch.as_tensor(around.background, dtype=torch.float32, device=torch_device)
 
-    def render_cameras(cameras: Cameras) -> list[View]:
-        return [render_camera(gaussians, cameras, index, background, chosen) for index in range(len(cameras))]
+    def render_cameras(cameras: Cameras, rendered: Sequence[str]) -> list[View]:
+        return [render_camera(gaussians, cameras, index, background, chosen, rendered)
+                for index in range(len(cameras))]
 
-    result = render_path(render_cameras, around, path, frames=frames, out=out)
+    result = render_path(render_cameras, around, path, frames=frames, out=out, outputs=outputs)
     return {**result, "splats": len(gaussians), "rasterizer": chosen}
