@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry clean
+.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-streaming clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -35,7 +35,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry
+bench: bench-formats bench-fuzz bench-ptx bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-streaming
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -46,6 +46,9 @@ bench-formats: $(BIN)/.open3d
 
 bench-fuzz: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_fuzz.py
+
+bench-ptx: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_ptx.py
 
 bench-pointnet: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_pointnet.py
@@ -70,6 +73,12 @@ bench-tsdf: $(BIN)/.open3d
 
 bench-geometry: $(BIN)/.open3d
 	$(BIN)/python benchmarks/bench_geometry.py
+
+# Streaming downsample of 20 M, 50 M and 200 M point LAZ files (generated once into
+# ../bench-output/streaming) and Dask on a folder of scans; smaller: make bench-streaming STREAMING_SIZES=2000000,5000000
+STREAMING_SIZES ?= 20000000,50000000,200000000
+bench-streaming: $(BIN)/.open3d
+	$(BIN)/python benchmarks/bench_streaming.py --sizes $(STREAMING_SIZES)
 
 bench-sfm: $(BIN)/.colmap
 	$(BIN)/python benchmarks/bench_sfm.py

@@ -21,8 +21,8 @@ from tqdm import tqdm
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from fuzzing import cases, generated_seeds, real_seeds, run_case  # noqa: E402
-from harness import Record  # noqa: E402
+from fuzzing import cases, generated_seeds, real_seeds, run_case
+from harness import Record
 
 SHARED_DATA = ROOT.parent / "shared" / "data"
 
@@ -36,9 +36,10 @@ def main() -> int:
     record = Record(
         "fuzz", "Fuzzing the readers", issue="2",
         about=f"{args.per_seed} mutations (random seed {args.seed}) of each seed file: small real files from "
-              "../shared/data and files pointfield wrote in every format and encoding, the same seeds and "
-              "mutations as tests/clouds/formats/test_fuzz.py. Every input must give a cloud or a FormatError, "
-              "within a second.")
+              "../shared/data, files pointfield wrote in every format and encoding (PTX included), a two-scan "
+              "Leica PTX file with a transform and a LAZ file as LASzip 1.2r0 wrote them (read by the LASzip "
+              "backend), the same seeds and mutations as tests/clouds/formats/test_fuzz.py. Every input must give "
+              "a cloud or a FormatError, within a second.")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         seeds = generated_seeds(folder)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 import signal
+import struct
 import time
 import warnings
 from collections.abc import Iterator
@@ -50,7 +51,8 @@ class Seed:
 
 
 def generated_seeds(workdir: Path) -> list[Seed]:
-    """One small file per writable format and encoding, written by pointfield itself."""
+    """One small file per writable format and encoding, written by pointfield itself, and the
+    files it cannot write: a two-scan Leica PTX with a transform, a LASzip 1.2r0 LAZ."""
     rng = np.random.default_rng(7)
     n = 40
     cloud = PointCloud(
@@ -78,7 +80,57 @@ def generated_seeds(workdir: Path) -> list[Seed]:
                     with warnings.catch_warnings(action="ignore"):
                         pointfield.write(path, item, format=fmt.name, encoding=encoding)
                     seeds.append(Seed(path.name, path.read_bytes(), suffix))
+    seeds.append(Seed("ptx-two-scans.ptx", two_scan_ptx().encode(), ".ptx"))
+    laz = next(seed.data for seed in seeds if seed.name == "las-laz-cloud.las")
+    seeds.append(Seed("laszip-1.2r0.laz", legacy_laszip(laz), ".laz"))
     return seeds
+
+
+# ---------------------------------------------------------------------------------------------
+# Seeds pointfield does not write itself
+
+
+def two_scan_ptx() -> str:
+    """A Leica PTX file as scanners write it: two organised scans (3 x 2 and 2 x 2 cells, one
+    without a return), colours, and a second scan rotated a quarter turn about z and moved."""
+    first = [
+        "0.5 1.25 -0.75 0.25 10 20 30", "1.5 1.0 -0.5 0.5 40 50 60", "0 0 0 0.5 0 0 0",
+        "2.5 0.75 0.25 0.125 70 80 90", "3.5 0.5 0.5 1 100 110 120", "4.5 0.25 1.5 0.75 1 2 3",
+    ]
+    second = [
+        "1 2 3 0.1 255 0 0", "4 5 6 0.2 0 255 0", "7 8 9 0.3 0 0 255", "-1 -2 -3 0.4 9 9 9",
+    ]
+    identity = ["1 0 0", "0 1 0", "0 0 1", "1 0 0 0", "0 1 0 0", "0 0 1 0", "0 0 0 1"]
+    turned = ["0 1 0", "-1 0 0", "0 0 1", "0 1 0 0", "-1 0 0 0", "0 0 1 0", "10 20 30 1"]
+    lines = ["3", "2", "0 0 0", *identity, *first, "2", "2", "10 20 30", *turned, *second]
+    return "\n".join(lines) + "\n"
+
+
+def legacy_laszip(laz: bytes) -> bytes:
+    """A single-chunk LAZ file as the LASzip 1.2r0 compressor wrote it: one pointwise stream
+    whose LASzip record declares variable-size chunks, and no chunk table.
+
+    A single chunk of the pointwise-chunked compressor holds the same stream, so the chunk
+    table offset before it and the table after it are dropped and the record rewritten
+    (compressor 1, version 1.2r0, chunk size 2**32 - 1). LAS 1.0 to 1.3 files without EVLRs.
+    """
+    data = bytearray(laz)
+    header_size, offset_to_points, vlr_count = struct.unpack_from("<HII", data, 94)
+    position = header_size
+    for _ in range(vlr_count):
+        user_id = bytes(data[position + 2 : position + 18]).rstrip(b"\0")
+        record_id, length = struct.unpack_from("<HH", data, position + 18)
+        if (user_id, record_id) == (b"laszip encoded", 22204):
+            record = position + 54
+            (compressor,) = struct.unpack_from("<H", data, record)
+            assert compressor == 2, f"expected a pointwise-chunked LAZ, got compressor {compressor}"
+            struct.pack_into("<HxxBBH", data, record, 1, 1, 2, 0)
+            struct.pack_into("<I", data, record + 12, 2**32 - 1)
+        position += 54 + length
+    (table,) = struct.unpack_from("<q", data, offset_to_points)
+    (chunks,) = struct.unpack_from("<I", data, table + 4)
+    assert chunks == 1, f"expected one LAZ chunk, got {chunks}"
+    return bytes(data[:offset_to_points] + data[offset_to_points + 8 : table])
 
 
 def real_seeds(shared_data: Path) -> list[Seed]:
@@ -140,7 +192,7 @@ class Hang(Exception):
     pass
 
 
-def _alarm(signum, frame):  # noqa: ARG001
+def _alarm(signum, frame):
     raise Hang
 
 

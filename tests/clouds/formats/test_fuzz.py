@@ -11,7 +11,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from fuzzing import cases, generated_seeds, real_seeds, run_case  # noqa: E402
+from fuzzing import cases, generated_seeds, real_seeds, run_case
 
 CASES_PER_SEED = 60
 
@@ -23,7 +23,7 @@ def _campaign(seeds, tmp_path, seed):
         path.write_bytes(data)
         try:
             outcome, _ = run_case(path)
-        except Exception as error:  # noqa: BLE001 - re-raised with the reproduction recipe
+        except Exception as error:
             raise AssertionError(
                 f"{origin.name} mutated by {description!r} (seed {seed}, case {i}) raised "
                 f"{type(error).__name__}: {error}"

@@ -48,12 +48,24 @@ def test_leica_pts_rows_are_x_y_z_intensity_red_green_blue(shared_data):
     np.testing.assert_array_equal(cloud.fields["colors"][0], [97, 59, 38])
 
 
-def test_pts_rows_beyond_the_count_line_are_read_with_a_warning(shared_data):
-    # PDAL's bunny_8.pts declares 8 points over 9 rows; PDAL drops the ninth, we lose nothing.
-    with pytest.warns(UserWarning, match="count line says 8 points but 9 rows follow"):
+def test_pts_reads_the_points_its_count_line_declares_and_warns_of_the_rest(shared_data):
+    # PDAL's bunny_8.pts declares 8 points over 9 rows; PDAL's tests read 8, and so do we.
+    with pytest.warns(UserWarning, match="count line says 8 points but 9 rows follow; the first 8"):
         cloud = pointfield.read(shared_data / "xyz_pts" / "pdal_bunny_8.pts")
-    assert len(cloud) == 9
+    assert len(cloud) == 8
     np.testing.assert_array_equal(cloud.points[0], [-0.037829, 0.12794, 0.004474])
+    rows = (shared_data / "xyz_pts" / "pdal_bunny_8.pts").read_text().split("\n")[1:9]
+    np.testing.assert_array_equal(cloud.points[-1], [float(v) for v in rows[-1].split()])
+
+
+def test_pts_rows_beyond_the_count_line_are_dropped_with_their_fields(tmp_path):
+    path = tmp_path / "extra.pts"
+    path.write_text("2\n1 2 3 10 255 0 0\n4 5 6 20 0 255 0\n7 8 9 30 0 0 255\n")
+    with pytest.warns(UserWarning, match="the first 2 were read"):
+        cloud = pointfield.read(path)
+    np.testing.assert_array_equal(cloud.points, [[1, 2, 3], [4, 5, 6]])
+    np.testing.assert_array_equal(cloud.fields["intensity"], [10, 20])
+    np.testing.assert_array_equal(cloud.fields["colors"], [[255, 0, 0], [0, 255, 0]])
 
 
 def test_cloudcompare_float_colours_with_alpha_stay_float(shared_data):

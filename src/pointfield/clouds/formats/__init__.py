@@ -8,9 +8,17 @@ from pointfield.clouds.formats import (  # noqa: F401  (each registers itself)
     off,
     pcd,
     ply,
+    ptx,
     text,
     velodyne,
 )
-from pointfield.clouds.formats.registry import Format, format_named, format_of, formats, read, write
+from pointfield.clouds.formats.registry import (
+    Format,
+    format_named,
+    format_of,
+    formats,
+    read,
+    write,
+)
 
 __all__ = ["Format", "format_named", "format_of", "formats", "read", "write"]

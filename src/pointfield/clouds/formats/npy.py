@@ -280,5 +280,6 @@ register(
         write=write_npy,
         encodings=("binary",),
         signature=looks_like_npy,
+        holds_records=True,
     )
 )

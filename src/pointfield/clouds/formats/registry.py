@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from pointfield.atomic import atomic_path
-from pointfield.clouds.cloud import PointCloud
+from pointfield.clouds.cloud import PointCloud, Records
 from pointfield.errors import FormatError
 
 SIGNATURE_BYTES = 64
@@ -31,7 +31,8 @@ class Format:
     ``encodings`` lists the encodings ``write`` accepts, the default first, and
     ``suffix_encodings`` the default for suffixes that imply another (``.laz`` -> ``laz``);
     ``aliases`` maps the generic names the command line uses (``ascii``, ``binary``,
-    ``compressed``) onto them. ``holds_faces`` says whether the format stores a Mesh's faces.
+    ``compressed``) onto them. ``holds_faces`` says whether the format stores a Mesh's faces,
+    ``holds_records`` whether it stores :class:`Records` (fields without x, y, z).
     """
 
     name: str
@@ -44,6 +45,7 @@ class Format:
     signature: Callable[[bytes], bool] | None = None
     suffix_encodings: Mapping[str, str] = field(default_factory=dict)
     holds_faces: bool = False
+    holds_records: bool = False
 
     def resolve_encoding(self, encoding: str | None, path: Path) -> str | None:
         if encoding is None:
@@ -130,6 +132,12 @@ def write(
     if fmt.write is None:
         raise FormatError(path, f"pointfield reads {fmt.name} but cannot write it")
     resolved = fmt.resolve_encoding(encoding, path)
+    if isinstance(cloud, Records) and not fmt.holds_records:
+        raise FormatError(
+            path,
+            f"{path.suffix or fmt.name} needs points; write records without x/y/z as .npy, .pcd "
+            f"or .ply",
+        )
     faces = getattr(cloud, "faces", ())
     if len(faces) and not fmt.holds_faces:
         warnings.warn(

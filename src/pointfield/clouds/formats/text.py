@@ -9,9 +9,9 @@ Reading. A file is a few optional preamble lines, then one row of numbers per po
 
 - Separators: runs of spaces or tabs, commas, or semicolons; the first row decides.
 - Count line: a line holding one integer, before the rows, is the number of points. It is
-  checked against the rows: fewer rows is a FormatError; more rows are all read, with a warning
-  that the count line is wrong (PDAL's own ``bunny_8.pts`` declares 8 points over 9 rows; PDAL
-  drops the ninth, pointfield loses nothing).
+  checked against the rows: fewer rows is a FormatError; of more rows, the declared number is
+  read, as PDAL reads them, with a warning that says how many rows were left out (PDAL's own
+  ``bunny_8.pts`` declares 8 points over 9 rows, and its tests read 8).
 - Names: a bare first line of names (a CSV header), or a comment line whose names include x, y
   and z and are as many as the values in a row (CloudCompare's ``//X,Y,Z,R,G,B``, pointfield's
   ``# x y z red green blue``). Named columns are grouped by :func:`columns_to_cloud_parts`:
@@ -58,7 +58,12 @@ from pathlib import Path
 import numpy as np
 
 from pointfield.clouds.cloud import PointCloud
-from pointfield.clouds.formats.ascii import TableError, numbers_by_line, read_table, write_rows
+from pointfield.clouds.formats.ascii import (
+    TableError,
+    numbers_by_line,
+    read_table,
+    write_rows,
+)
 from pointfield.clouds.formats.columns import (
     cloud_to_columns,
     columns_to_cloud_parts,
@@ -128,9 +133,10 @@ def read_text(path: Path, columns: str | Sequence[str] | None = None) -> PointCl
         if n > preamble.count:
             warnings.warn(
                 f"{path}: the count line says {preamble.count} points but {n} rows follow; "
-                f"all {n} were read",
+                f"the first {preamble.count} were read, as PDAL reads them",
                 stacklevel=3,
             )
+            parsed = [column[: preamble.count] for column in parsed]
     if guessed and names[3:] == ["red", "green", "blue"] and _are_normals(parsed[3:]):
         names[3:] = ["nx", "ny", "nz"]
     raw = dict(zip(names, parsed, strict=True))

@@ -1,7 +1,22 @@
 """Raw float32 LiDAR scans (``.bin``): KITTI, nuScenes, ScanNet.
 
 A scan is nothing but N records of ``columns`` little-endian float32 values, with no header, so
-the file cannot say how many columns it has: ``columns=`` does (KITTI's 4 by default).
+the file cannot say how many columns it has: ``columns=`` does (``--columns`` on the command
+line). Without it the layout is chosen between KITTI's 4 and nuScenes' 5 columns, on this
+evidence, strongest first:
+
+1. the file size: a whole number of 16-byte or of 20-byte records;
+2. the values (of some 8,000 records at the start and as many in the middle): a layout fits
+   when its x y z are finite numbers below 10**6, in each axis at most half of them non-zero
+   whole numbers (coordinates are measurements, not counts; checked from 16 points on), its
+   intensity column is finite and not negative, and, for 5 columns, its ring column holds
+   whole numbers from 0 to 1023. Read under the wrong layout, a scan's columns interleave,
+   coordinates land in the intensity and ring columns, and these checks fail;
+3. the name: a ``.pcd.bin`` suffix or ``LIDAR_TOP`` in it (nuScenes' sweeps) says 5, else 4.
+
+A single fitting layout is read (with a warning when the name said otherwise); two are decided
+by the name; none is a FormatError that names ``columns=`` and the counts the size allows, so
+a scan of another layout (ScanNet's 6 columns) is refused rather than read as garbage.
 
 =======  ========================  ==========================================================
 columns  dataset                   fields
@@ -23,7 +38,7 @@ else ``colors`` (N, 3) -> 6; else ``features`` (N, K) -> 3 + K (for K < 4 that r
 under the names of the 4, 5 or 6 column layouts); else 3. Anything else is left out with a
 warning. Every value is cast to float32; a warning says so when that changes a value
 (float64 coordinates far from the origin lose digits). A layout other than KITTI's 4 columns
-reads back only with the same ``columns=``; a warning says which.
+is read back surely only with the same ``columns=``; a warning says which.
 """
 
 from __future__ import annotations
@@ -39,14 +54,26 @@ from pointfield.clouds.formats.registry import Format, register
 from pointfield.errors import FormatError
 
 DEFAULT_COLUMNS = 4
+NUSCENES_COLUMNS = 5
+GUESSED_COLUMNS = (DEFAULT_COLUMNS, NUSCENES_COLUMNS)
+LAYOUT_NAMES = {4: "KITTI's x y z intensity", 5: "nuScenes' x y z intensity ring"}
 RECORD_DTYPE = np.dtype("<f4")
+
+# What a layout's values must look like to be read without columns= (see the module docstring).
+SAMPLE_RECORDS = 8192
+MAX_COORDINATE = 1e6
+MIN_RECORDS_FOR_COUNTS = 16
+MAX_RING = 1023
 
 # Column counts to suggest when a file's size does not fit the one asked for.
 SUGGESTED_COLUMNS = range(3, 17)
 
 
-def read_velodyne(path: Path, columns: int = DEFAULT_COLUMNS) -> PointCloud:
-    """Read a raw float32 scan of ``columns`` values per point (see the module docstring)."""
+def read_velodyne(path: Path, columns: int | None = None) -> PointCloud:
+    """Read a raw float32 scan of ``columns`` values per point, or of the layout its size,
+    values and name call for when ``columns`` is None (see the module docstring)."""
+    if columns is None:
+        columns = guess_columns(path)
     if isinstance(columns, bool) or not isinstance(columns, (int, np.integer)) or columns < 3:
         raise FormatError(path, f"columns={columns!r}; expected an integer >= 3 (x y z first)")
     columns = int(columns)
@@ -55,21 +82,23 @@ def read_velodyne(path: Path, columns: int = DEFAULT_COLUMNS) -> PointCloud:
         raise FormatError(path, "empty file: a float32 scan holds at least one point")
     record = RECORD_DTYPE.itemsize * columns
     if size % record:
-        fitting = [c for c in SUGGESTED_COLUMNS if size % (RECORD_DTYPE.itemsize * c) == 0]
-        hint = (
-            f"; columns={', '.join(map(str, fitting))} would divide it"
-            if fitting
-            else "; no column count from 3 to 16 divides it, so it is not a float32 scan"
-        )
         raise FormatError(
             path,
             f"{size} bytes is not a whole number of {columns}-column float32 records "
-            f"({record} bytes each){hint}",
+            f"({record} bytes each){_dividing_hint(size)}",
         )
     # A read-only map of the file: each output array is copied out of it once, so memory holds
     # the output and nothing more.
     with open(path, "rb") as file:
         records = read_records(map_file(file), np.dtype((RECORD_DTYPE, columns)), size // record)
+    cloud = cloud_from_records(records)
+    del records
+    return cloud
+
+
+def cloud_from_records(records: np.ndarray) -> PointCloud:
+    """The cloud of ``(N, columns)`` float32 records, fields named by the table above."""
+    columns = records.shape[1]
     points = records[:, :3].astype(np.float32)
     fields = {}
     if columns == 4 or columns == 5:
@@ -80,8 +109,94 @@ def read_velodyne(path: Path, columns: int = DEFAULT_COLUMNS) -> PointCloud:
         fields["colors"] = records[:, 3:6].astype(np.float32)
     if columns > 6:
         fields["features"] = records[:, 3:].astype(np.float32)
-    del records
     return PointCloud(points, fields, None, {"encoding": "float32", "columns": columns})
+
+
+def guess_columns(path: Path) -> int:
+    """4 (KITTI) or 5 (nuScenes): the layout the file's size, values and name call for.
+
+    Raises FormatError naming ``columns=`` when neither layout fits (see the module docstring).
+    """
+    size = path.stat().st_size
+    if size == 0:
+        raise FormatError(path, "empty file: a float32 scan holds at least one point")
+    sized = [c for c in GUESSED_COLUMNS if size % (RECORD_DTYPE.itemsize * c) == 0]
+    if not sized:
+        raise FormatError(
+            path,
+            f"{size} bytes is a whole number of neither 4-column (KITTI) nor 5-column "
+            f"(nuScenes) float32 records{_dividing_hint(size)}",
+        )
+    sample = _sample(path, size)
+    reasons = {c: _implausible(sample, c) for c in sized}
+    fitting = [c for c in sized if reasons[c] is None]
+    named = NUSCENES_COLUMNS if _named_like_nuscenes(path) else DEFAULT_COLUMNS
+    if not fitting:
+        why = "; ".join(f"as {c} columns {reasons[c]}" for c in sized)
+        raise FormatError(
+            path,
+            f"the values fit neither KITTI's 4 nor nuScenes' 5 float32 columns ({why}); give "
+            f"the layout with columns= (--columns on the command line){_dividing_hint(size)}",
+        )
+    if named in fitting:
+        return named
+    chosen = fitting[0]
+    told = "its name says nuScenes (5 columns), but " if named == NUSCENES_COLUMNS else ""
+    warnings.warn(
+        f"{path}: {told}its size and values fit {LAYOUT_NAMES[chosen]} only: read as "
+        f"{chosen} float32 columns (columns= chooses)",
+        stacklevel=4,
+    )
+    return chosen
+
+
+def _named_like_nuscenes(path: Path) -> bool:
+    return path.name.lower().endswith(".pcd.bin") or "LIDAR_TOP" in path.name
+
+
+def _sample(path: Path, size: int) -> np.ndarray:
+    """Float32 values of the first and the middle records, cut where both layouts' records end."""
+    block = SAMPLE_RECORDS * RECORD_DTYPE.itemsize * 5  # whole records of 4 and of 5 columns
+    with open(path, "rb") as file:
+        head = file.read(block)
+        middle = b""
+        if size > 2 * block:
+            file.seek((size // 2) // block * block)
+            middle = file.read(block)
+    return np.frombuffer(head + middle, RECORD_DTYPE).astype(np.float64)
+
+
+def _implausible(values: np.ndarray, columns: int) -> str | None:
+    """Why ``values`` read as ``columns``-column records are not a scan, or None if they may be."""
+    records = values[: len(values) // columns * columns].reshape(-1, columns)
+    xyz = records[:, :3]
+    measured = np.isfinite(xyz).all(axis=1)  # NaN rows are points without a return
+    if not measured.any():
+        return None if len(records) else "no records"
+    coordinates = xyz[measured]
+    if np.abs(coordinates).max() >= MAX_COORDINATE:
+        return f"gives coordinates of {np.abs(coordinates).max():.3g}"
+    if len(coordinates) >= MIN_RECORDS_FOR_COUNTS:
+        counts = (coordinates == np.round(coordinates)) & (coordinates != 0)
+        if counts.mean(axis=0).max() > 0.5:
+            return "gives coordinates that are mostly whole numbers (counts or colours?)"
+    intensity = records[:, 3]
+    if not np.isfinite(intensity).all() or intensity.min() < 0:
+        return "gives negative or non-finite intensities"
+    if columns == NUSCENES_COLUMNS:
+        ring = records[:, 4]
+        if not (np.isfinite(ring).all() and (ring == np.round(ring)).all()):
+            return "gives ring numbers that are not whole numbers"
+        if ring.min() < 0 or ring.max() > MAX_RING:
+            return f"gives ring numbers from {ring.min():g} to {ring.max():g}"
+    return None
+
+
+def _dividing_hint(size: int) -> str:
+    fitting = [c for c in SUGGESTED_COLUMNS if size % (RECORD_DTYPE.itemsize * c) == 0]
+    if fitting:
+        return f"; columns={', '.join(map(str, fitting))} would divide it"
+    return "; no column count from 3 to 16 divides it, so it is not a float32 scan"
 
 
 def write_velodyne(path: Path, cloud: PointCloud, encoding: str | None = None) -> None:

@@ -1,4 +1,4 @@
-"""ASPRS LAS / LAZ / COPC lidar files, through laspy (LAZ through its lazrs backend).
+"""ASPRS LAS / LAZ / COPC lidar files, through laspy (LAZ through its lazrs or LASzip backend).
 
 Reading
     ``points`` are the scaled coordinates ``x = X * scale + offset`` as float64 (UTM-sized
@@ -32,7 +32,12 @@ Writing
     Standard dimensions have fixed types. Values that fit are stored exactly and read back in the
     LAS type; colours of other dtypes are converted to uint16 (uint8 * 257, float in [0, 1] *
     65535), float ``intensity`` in [0, 1] is scaled by 65535, anything else that does not fit is
-    rounded and clipped. One warning lists every such change.
+    rounded and clipped; NaN in an integer dimension is written as 0. Field names LAS cannot
+    hold are changed: a well-known spelling of a standard dimension becomes it (E57's
+    ``las:pointSourceId``, PDAL's ``PointSourceId`` or ``GpsTime`` -> ``point_source_id``,
+    ``gps_time``), other names have ``:`` and non-ASCII characters replaced by ``_`` (numpy's
+    buffers, through which laspy writes, refuse ``:``). One warning lists every such change.
+    :class:`Records` (no x, y, z) are refused by the registry, as for NPZ.
 
 Metadata (read, and used by the writer to write a LAS cloud back faithfully)
     ``scales``, ``offsets`` (3 floats each), ``las_version`` ("1.4"), ``las_point_format``
@@ -44,12 +49,18 @@ Metadata (read, and used by the writer to write a LAS cloud back faithfully)
     the COPC index, which a re-written file no longer matches. The writer records itself as the
     generating software. Waveform data packets are not read.
 
+LAZ backends: lazrs reads LAZ; where it fails, LASzip's own decompressor (PyPI ``laszip``) is
+tried, and a file both refuse is one FormatError giving both reasons. Files of the LASzip 1.2r0
+compressor (one pointwise stream whose LASzip record declares variable-size chunks) go to LASzip
+directly: lazrs panics on them. The report Rust prints to standard error when lazrs panics is
+kept off the terminal (``library.rust_panics_quiet``).
+
 Hostile files: the header's sizes, counts, VLR and EVLR lengths and, for LAZ, the chunk table are
-checked against the file's size before laspy or lazrs allocate anything, and every laspy / lazrs
-failure (including lazrs panics) becomes a :class:`FormatError` naming the file.
+checked against the file's size before laspy, lazrs or LASzip allocate anything, and every laspy /
+lazrs / LASzip failure (including lazrs panics) becomes a :class:`FormatError` naming the file.
 
 Modules: ``layout`` (those checks), ``reader``, ``dimensions`` (which dimension each field is
-written to), ``writer``, ``library`` (laspy's and lazrs's errors as FormatErrors).
+written to), ``writer``, ``library`` (laspy's, lazrs's and LASzip's errors as FormatErrors).
 """
 
 from pointfield.clouds.formats.las.layout import is_las
@@ -62,7 +73,7 @@ __all__ = ["is_las", "read_las", "write_las"]
 register(
     Format(
         name="las",
-        description="ASPRS LAS / LAZ / COPC lidar (laspy + lazrs)",
+        description="ASPRS LAS / LAZ / COPC lidar (laspy + lazrs, LASzip for old LAZ)",
         suffixes=(".las", ".laz"),
         read=read_las,
         write=write_las,

@@ -7,6 +7,7 @@ own dtype. See the package docstring for the rules.
 
 from __future__ import annotations
 
+import re
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -79,6 +80,51 @@ _MIN_VERSION = {
 
 
 
+# A name's word boundaries: "pointSourceId" and PDAL's "PointSourceId" -> "point_source_id".
+_CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])")
+# Characters a LAS extra-dimension name cannot hold: numpy's buffer protocol, through which laspy
+# writes, refuses ':' in field names; the name is 32 bytes of ASCII.
+_UNNAMEABLE = re.compile(r"[^\x20-\x7e]|:")
+
+
+def las_field_names(fields: Mapping[str, np.ndarray], notes: list[str]) -> dict[str, np.ndarray]:
+    """The fields under names LAS holds; each rename noted.
+
+    A well-known spelling of a standard dimension becomes that dimension: a namespaced or
+    camel-case name (E57's ``las:pointSourceId``, PDAL's ``PointSourceId``, ``GpsTime``) whose
+    snake-case form is a LAS dimension (``point_source_id``). Every other name loses the
+    characters a LAS name cannot hold (``:``, non-ASCII), each replaced by ``_``. A new name
+    already taken gets a ``_2``, ``_3``, ... suffix.
+    """
+    renamed: dict[str, np.ndarray] = {}
+    changes = []
+    for name, values in fields.items():
+        local = name.rsplit(":", 1)[-1]
+        dimension = _CAMEL.sub("_", local).lower()
+        if (
+            dimension != name
+            and values.ndim == 1
+            and values.dtype.kind in "biuf"
+            and dimension in _STANDARD_NAMES
+            and dimension not in COLOR_DIMENSIONS
+            and dimension not in fields
+            and dimension not in renamed
+        ):
+            renamed[dimension] = values
+            changes.append(f"{name!r} -> {dimension!r} (the LAS dimension)")
+            continue
+        new = _UNNAMEABLE.sub("_", name)
+        if new != name:
+            base, suffix = new, 2
+            while new in fields or new in renamed:
+                new, suffix = f"{base}_{suffix}", suffix + 1
+            changes.append(f"{name!r} -> {new!r}")
+        renamed[new] = values
+    if changes:
+        notes.append("renamed " + ", ".join(changes) + " (LAS names are ASCII without ':')")
+    return renamed
+
+
 def split_fields(
     fields: Mapping[str, np.ndarray], notes: list[str]
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -92,7 +138,9 @@ def split_fields(
             if rgb.shape[1] == 4:
                 extra["alpha"] = rgb[:, 3]
         elif name == "intensity" and _is_unit_float(values):
-            notes.append(f"intensity {values.dtype} in [0, 1] -> uint16 (x65535)")
+            notes.append(
+                f"intensity {values.dtype} in [0, 1] -> uint16 (x65535){_nan_note(values)}"
+            )
             standard[name] = _unit_to_uint16(values)
         elif name in _STANDARD_NAMES and values.ndim == 1 and values.dtype.kind in "biuf":
             standard[name] = values
@@ -109,7 +157,7 @@ def _colors_as_uint16(colors: np.ndarray, notes: list[str]) -> np.ndarray:
         notes.append("colors uint8 -> uint16 (x257)")
         return colors.astype(np.uint16) * np.uint16(257)
     if _is_unit_float(colors):
-        notes.append(f"colors {colors.dtype} in [0, 1] -> uint16 (x65535)")
+        notes.append(f"colors {colors.dtype} in [0, 1] -> uint16 (x65535){_nan_note(colors)}")
         return _unit_to_uint16(colors)
     return fit("colors", colors, _Dimension(np.dtype(np.uint16), 0, 65535), notes)
 
@@ -119,6 +167,12 @@ def _is_unit_float(values: np.ndarray) -> bool:
     return values.dtype.kind == "f" and bool(
         np.nanmin(values, initial=0) >= 0 and np.nanmax(values, initial=0) <= 1
     )
+
+
+def _nan_note(values: np.ndarray) -> str:
+    """``", 3 NaN written as 0"`` for float values with NaN (LAS integers have no NaN), else ''."""
+    nan = int(np.count_nonzero(np.isnan(values))) if values.dtype.kind == "f" else 0
+    return f", {nan} NaN written as 0" if nan else ""
 
 
 def _unit_to_uint16(values: np.ndarray) -> np.ndarray:
@@ -176,11 +230,14 @@ def fit(name: str, values: np.ndarray, dimension: _Dimension, notes: list[str]) 
     converted = np.clip(
         np.round(np.nan_to_num(values.astype(np.float64))), dimension.low, dimension.high
     )
-    changed = int(np.count_nonzero(converted != values))
-    notes.append(
-        f"{name} {values.dtype} -> {dimension.dtype}, {changed} values rounded or clipped to "
-        f"[{dimension.low:g}, {dimension.high:g}]"
-    )
+    nan = np.isnan(values) if values.dtype.kind == "f" else np.zeros(values.shape, bool)
+    changed = int(np.count_nonzero((converted != values) & ~nan))
+    note = f"{name} {values.dtype} -> {dimension.dtype}{_nan_note(values)}"
+    if changed or not nan.any():
+        note += (
+            f", {changed} values rounded or clipped to [{dimension.low:g}, {dimension.high:g}]"
+        )
+    notes.append(note)
     return converted.astype(dimension.dtype)
 
 

@@ -16,7 +16,7 @@ import laspy
 import lazrs
 
 from pointfield.clouds.formats.binary import check_size
-from pointfield.clouds.formats.las.library import library_errors
+from pointfield.clouds.formats.las.library import library_errors, rust_panics_quiet
 from pointfield.errors import FormatError
 
 SIGNATURE = b"LASF"
@@ -30,7 +30,10 @@ _VLR_HEADER_SIZE = 54
 _EVLR_HEADER_SIZE = 60
 LASZIP_USER_ID, LASZIP_RECORD_ID = "laszip encoded", 22204
 _LASZIP_KEY = (LASZIP_USER_ID.encode(), LASZIP_RECORD_ID)
+_POINTWISE_COMPRESSOR = 1  # LASzip 1.x: one stream, no chunks
 _CHUNKED_COMPRESSORS = (2, 3)  # pointwise chunked, layered chunked: both carry a chunk table
+_LASZIP_CHUNK_SIZE_OFFSET = 12
+_VARIABLE_CHUNKS = 2**32 - 1  # the chunk size that means "variable-size chunks"
 _LAYERED_COMPRESSOR = 3
 _LASZIP_ITEM_COUNT_OFFSET = 32
 # Layers of each LAZ item type in layered chunks: Point14 9 (xy and returns, z, classification,
@@ -168,11 +171,24 @@ def check_laz(path: Path, file: BinaryIO, layout: Layout, size: int) -> laspy.La
     fails; so the table must agree with the file and with the header's point count. The
     parallel decompressor (laspy's default) is used when there are several chunks; a single
     chunk gains nothing from it, and its buffer would be sized by the declared chunk size.
+
+    Files of the LASzip 1.2r0 compressor (one pointwise stream whose record declares
+    variable-size chunks) make lazrs panic ("Variable-size chunks, but no chunk table"); they
+    get the LASzip backend (PyPI ``laszip``), which reads them, or a FormatError saying so.
     """
     record_data = layout.laszip_record
     if len(record_data) < _LASZIP_ITEM_COUNT_OFFSET + 2:
         raise FormatError(path, f"LASzip record is {len(record_data)} bytes, too short")
     (compressor,) = struct.unpack_from("<H", record_data)
+    (declared_chunk_size,) = struct.unpack_from("<I", record_data, _LASZIP_CHUNK_SIZE_OFFSET)
+    if compressor == _POINTWISE_COMPRESSOR and declared_chunk_size == _VARIABLE_CHUNKS:
+        if not laspy.LazBackend.Laszip.is_available():
+            raise FormatError(
+                path,
+                "LAZ of an old LASzip (one pointwise stream declaring variable-size chunks): "
+                "lazrs cannot read it and the LASzip backend is not installed (pip install laszip)",
+            )
+        return laspy.LazBackend.Laszip
     if compressor not in _CHUNKED_COMPRESSORS or layout.point_count == 0:
         return laspy.LazBackend.Lazrs  # no chunk table; lazrs reads such data point by point
     data_start = layout.offset_to_points + 8
@@ -196,7 +212,7 @@ def check_laz(path: Path, file: BinaryIO, layout: Layout, size: int) -> laspy.La
             path,
             f"LAZ chunk table declares {chunk_count} chunks in {compressed_bytes} bytes of data",
         )
-    with library_errors(path, "lazrs could not read the LAZ chunk table"):
+    with rust_panics_quiet(), library_errors(path, "lazrs could not read the LAZ chunk table"):
         vlr = lazrs.LazVlr(record_data)
         file.seek(layout.offset_to_points)
         chunks = lazrs.read_chunk_table(file, vlr)
@@ -223,6 +239,20 @@ def check_laz(path: Path, file: BinaryIO, layout: Layout, size: int) -> laspy.La
     if compressor == _LAYERED_COMPRESSOR:
         _check_layer_sizes(path, file, record_data, chunks, data_start)
     return laspy.LazBackend.LazrsParallel if len(chunks) > 1 else laspy.LazBackend.Lazrs
+
+
+def laz_backends(
+    path: Path, file: BinaryIO, layout: Layout, size: int
+) -> tuple[laspy.LazBackend, ...]:
+    """The decompressors to try in turn: :func:`check_laz`'s choice, then LASzip if installed.
+
+    LASzip reads some files lazrs refuses; the table checks above come first either way.
+    """
+    first = check_laz(path, file, layout, size)
+    fallback = laspy.LazBackend.Laszip
+    if first is not fallback and fallback.is_available():
+        return first, fallback
+    return (first,)
 
 
 def _check_layer_sizes(

@@ -23,9 +23,9 @@ from pointfield.clouds.formats.las.layout import (
     LASZIP_USER_ID,
     Layout,
     check_layout,
-    check_laz,
+    laz_backends,
 )
-from pointfield.clouds.formats.las.library import library_errors
+from pointfield.clouds.formats.las.library import library_errors, rust_panics_quiet
 from pointfield.errors import FormatError
 
 # A LAZ file whose header claims more points than this per compressed byte is decompressed in
@@ -51,19 +51,38 @@ def read_las(path: Path) -> PointCloud:
     size = path.stat().st_size
     with open(path, "rb") as file:
         layout = check_layout(path, file, size)
-        backend = check_laz(path, file, layout, size) if layout.compressed else None
-        with library_errors(path, "laspy could not read it"):
-            file.seek(0)
-            reader = laspy.LasReader(file, closefd=False, laz_backend=backend)
-            header = reader.header
-            if layout.compressed:
-                records = _decompress(path, reader, layout, size)
-            else:
+        if layout.compressed:
+            header, records = _read_laz(path, file, layout, size)
+        else:
+            with library_errors(path, "laspy could not read it"):
+                file.seek(0)
+                header = laspy.LasReader(file, closefd=False).header
                 records = _map_records(path, file, header, layout)
     points, fields = _cloud_parts(records, header, path)
     # The fields are copies, so dropping the records releases the mapping of the file.
     del records
     return PointCloud(points, fields, None, _metadata(header, layout))
+
+
+def _read_laz(
+    path: Path, file: BinaryIO, layout: Layout, size: int
+) -> tuple[laspy.LasHeader, np.ndarray]:
+    """The header and point records of a LAZ file, by lazrs or, where it fails, by LASzip.
+
+    A failure of every decompressor is one FormatError giving each one's reason; the report
+    Rust prints when lazrs panics is kept off standard error.
+    """
+    failures = []
+    for backend in laz_backends(path, file, layout, size):
+        name = "LASzip" if backend is laspy.LazBackend.Laszip else "lazrs"
+        try:
+            with rust_panics_quiet(), library_errors(path, f"{name} could not read it"):
+                file.seek(0)
+                reader = laspy.LasReader(file, closefd=False, laz_backend=backend)
+                return reader.header, _decompress(path, reader, layout, size)
+        except FormatError as error:
+            failures.append(error.reason)
+    raise FormatError(path, "; ".join(failures))
 
 
 def _decompress(path: Path, reader: laspy.LasReader, layout: Layout, size: int) -> np.ndarray:

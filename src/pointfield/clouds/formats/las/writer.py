@@ -22,6 +22,7 @@ from pointfield.clouds.formats.las.dimensions import (
     choose_point_format,
     extra_dimensions,
     fit,
+    las_field_names,
     split_fields,
     version_for,
 )
@@ -40,7 +41,7 @@ def write_las(path: Path, cloud: PointCloud, encoding: str | None = None) -> Non
     notes: list[str] = []
     points, fields = _finite_points(cloud)
 
-    standard, extra = split_fields(fields, notes)
+    standard, extra = split_fields(las_field_names(fields, notes), notes)
     format_id = choose_point_format(standard, metadata)
     dimensions = FORMATS[format_id]
     for name in list(standard):

@@ -21,7 +21,8 @@ Lines starting with ``#`` are comments. Old ``VERSION .5`` headers may leave out
 ``WIDTH`` / ``HEIGHT`` (``POINTS`` x 1) and ``VIEWPOINT``; the oldest even ``SIZE`` and ``TYPE``
 (F4), as PCL assumes. The data after the ``DATA`` line is
 
-- ``ascii``: one line per point, the values separated by spaces;
+- ``ascii``: one line per point, the values separated by spaces (tabs and commas, which PDAL
+  writes, are read too);
 - ``binary``: the points one after another, each the fields' values packed in header order
   (little-endian, no alignment);
 - ``binary_compressed``: uint32 compressed size, uint32 uncompressed size, then one LZF block
@@ -97,5 +98,6 @@ register(
         encodings=ENCODINGS,
         aliases={"compressed": "binary_compressed"},
         signature=looks_like_pcd,
+        holds_records=True,
     )
 )

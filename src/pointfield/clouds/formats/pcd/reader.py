@@ -12,7 +12,12 @@ import numpy as np
 
 from pointfield.clouds.cloud import PointCloud, Records
 from pointfield.clouds.formats.ascii import TableError, read_table, single_spaced
-from pointfield.clouds.formats.binary import check_size, map_file, read_records, record_dtype
+from pointfield.clouds.formats.binary import (
+    check_size,
+    map_file,
+    read_records,
+    record_dtype,
+)
 from pointfield.clouds.formats.columns import columns_to_cloud_parts
 from pointfield.clouds.formats.pcd.header import (
     LZF_MAX_EXPANSION,
@@ -132,8 +137,10 @@ def _columns_of(data: bytes, header: PcdHeader) -> dict[str, np.ndarray]:
 def _read_ascii(data: bytes, header: PcdHeader, path: Path) -> dict[str, np.ndarray]:
     """Columns of ``DATA ascii``, one line per point, values one space apart.
 
-    Files with tabs, repeated or trailing spaces are made single-spaced and parsed again.
-    ``nan``, ``inf`` and ``-inf`` are accepted for floats.
+    Files with tabs, repeated or trailing spaces are made single-spaced and parsed again. Values
+    separated by commas (not PCL's, but PDAL writes and reads them) are read too: one comma
+    apart directly, otherwise with the commas made spaces. ``nan``, ``inf`` and ``-inf`` are
+    accepted for floats.
     """
     n = header.points
     values_per_point = sum(f.count for f in header.fields)
@@ -147,9 +154,14 @@ def _read_ascii(data: bytes, header: PcdHeader, path: Path) -> dict[str, np.ndar
             f"values",
         )
     column_types = [_text_dtype(f) for f in header.fields for _ in range(f.count)]
+    end = data.find(b"\n")
+    first_line = data[: end if end >= 0 else len(data)]
+    delimiter = "," if b"," in first_line else " "
     try:
-        parsed = read_table(data, column_types)
+        parsed = read_table(data, column_types, delimiter)
     except TableError:
+        if delimiter == ",":
+            data = data.translate(_COMMAS_TO_SPACES)
         try:
             parsed = read_table(single_spaced(data), column_types)
         except TableError as error:
@@ -171,6 +183,9 @@ def _read_ascii(data: bytes, header: PcdHeader, path: Path) -> dict[str, np.ndar
         else:
             columns[f.name] = np.stack(parts, axis=1)
     return columns
+
+
+_COMMAS_TO_SPACES = bytes.maketrans(b",", b" ")
 
 
 def _text_dtype(f: PcdField) -> np.dtype | None:

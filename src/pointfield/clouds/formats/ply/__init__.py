@@ -39,8 +39,10 @@ How a file maps onto pointfield objects:
 
 Writing stores every field with its own dtype (ascii files declare types too, so dtypes round-trip
 in all three encodings). Types PLY has no name for are converted when no value changes (bool ->
-uchar, float16 -> float, int64 / uint64 -> int or uint when every value fits in 32 bits) and
-refused with a FormatError otherwise. ``(N, K)`` fields other than colours and normals are written
+uchar, float16 -> float) and refused with a FormatError otherwise. PLY has no 64-bit integers:
+int64 / uint64 fields are written as uint or int (the source's signedness first) when every
+value fits in 32 bits, else as double when every value is exact in one (|v| <= 2**53), each with
+a warning naming the field and the type it reads back as; larger values are refused. ``(N, K)`` fields other than colours and normals are written
 as lists of K items. Ascii floats are written in the shortest form that reads back to the same
 float32 / float64 value.
 
@@ -65,6 +67,7 @@ register(
         encodings=ENCODINGS,
         aliases={"binary": "binary_little_endian", "ascii": "ascii"},
         signature=is_ply,
+        holds_records=True,
         holds_faces=True,
     )
 )

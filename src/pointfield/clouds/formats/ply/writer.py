@@ -93,7 +93,7 @@ def _elements_to_write(path: Path, cloud: PointCloud | Records) -> list[_OutElem
     elements = [_out_element(path, "vertex", _ply_columns(path, "vertex", points, cloud.fields))]
     if isinstance(cloud, Mesh):
         _check_faces_to_write(path, cloud)
-        face_columns = _ply_columns(path, "face", None, {"vertex_indices": cloud.faces})
+        face_columns = _ply_columns(path, "face", None, {"vertex_indices": _as_int32_indices(cloud.faces)})
         for name, values in _ply_columns(path, "face", None, cloud.face_fields).items():
             if name in face_columns:
                 raise FormatError(
@@ -190,6 +190,15 @@ def _column_to_write(path: Path, element: str, name: str, values: np.ndarray) ->
     return _Column(name, _storable(path, label, values))
 
 
+def _as_int32_indices(faces: np.ndarray) -> np.ndarray:
+    """Vertex indices as PLY's usual ``int`` where they fit (every mesh under 2**31 vertices), without
+    the 64-bit narrowing warning: a face's vertex index is an index, whatever dtype it was kept in."""
+    if faces.dtype != object and faces.dtype.kind in "iu" and faces.dtype.itemsize > 4 and faces.size:
+        if 0 <= faces.min() and faces.max() <= np.iinfo(np.int32).max:
+            return faces.astype(np.int32)
+    return faces
+
+
 def _storable(path: Path, label: str, values: np.ndarray) -> np.ndarray:
     """``values`` in a native-order dtype PLY has a type name for, converted only when no value
     changes; FormatError otherwise."""
@@ -197,17 +206,7 @@ def _storable(path: Path, label: str, values: np.ndarray) -> np.ndarray:
     if dtype.kind == "b":
         return values.astype(np.uint8)
     if dtype.kind in "iu" and dtype.itemsize > 4:
-        low = int(values.min()) if values.size else 0
-        high = int(values.max()) if values.size else 0
-        for target in (np.int32, np.uint32):
-            info = np.iinfo(target)
-            if info.min <= low and high <= info.max:
-                return values.astype(target)
-        raise FormatError(
-            path,
-            f"{label} holds {dtype} values from {low} to {high}, outside the 32-bit "
-            "integers PLY can store",
-        )
+        return _without_64_bit_integers(path, label, values)
     if dtype.kind == "f" and dtype.itemsize != 4 and dtype.itemsize != 8:
         target = np.float32 if dtype.itemsize < 4 else np.float64
         converted = values.astype(target)
@@ -221,6 +220,40 @@ def _storable(path: Path, label: str, values: np.ndarray) -> np.ndarray:
             path, f"{label} has dtype {dtype}; PLY stores integers of up to 32 bits and floats"
         )
     return values.astype(dtype.newbyteorder("="), copy=False)
+
+
+def _without_64_bit_integers(path: Path, label: str, values: np.ndarray) -> np.ndarray:
+    """int64 / uint64 values as a type PLY has, with a warning: PLY has no 64-bit integers.
+
+    Values that fit 32 bits are written as int / uint (the source's signedness first); values
+    beyond that but exact in a double (|v| <= 2**53) as double, which reads back as float64;
+    anything larger is refused.
+    """
+    dtype = values.dtype
+    low = int(values.min()) if values.size else 0
+    high = int(values.max()) if values.size else 0
+    targets = (np.uint32, np.int32) if dtype.kind == "u" else (np.int32, np.uint32)
+    for target in targets:
+        info = np.iinfo(target)
+        if info.min <= low and high <= info.max:
+            warnings.warn(
+                f"PLY has no 64-bit integers; {label} ({dtype}) is written as "
+                f"{np.dtype(target)}, which holds every value, and reads back as that",
+                stacklevel=9,
+            )
+            return values.astype(target)
+    if -(2**53) <= low and high <= 2**53:
+        warnings.warn(
+            f"PLY has no 64-bit integers; {label} ({dtype}, values up to {high}) is "
+            "written as double, exact for these values, and reads back as float64",
+            stacklevel=9,
+        )
+        return values.astype(np.float64)
+    raise FormatError(
+        path,
+        f"{label} holds {dtype} values from {low} to {high}: PLY has no 64-bit integers, and "
+        "a double holds integers exactly only up to 2**53",
+    )
 
 
 def _header_text(encoding: str, elements: list[_OutElement], metadata: Mapping[str, Any]) -> bytes:
