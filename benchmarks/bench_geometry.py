@@ -15,11 +15,12 @@ protocol; F-score at 1 % of the true bounding-box diagonal, k-d trees; a mesh is
   pointfield's mesh (open3d's legacy ``ScalableTSDFVolume`` meshes nothing in the open3d-cpu 0.20
   wheel here: see ``bench_tsdf.py``).
 
-Then, unless ``--lego-time 0``, NeRF-synthetic lego at 100 x 100: the hash-grid field with random
-backgrounds and with the fixed white one, splats with and without the alpha loss, each trained
-for ``--lego-time`` seconds, held-out PSNR and opacity error side by side (opacity training must
-not cost PSNR); then the mesh of the first exported at 256^3, timed end to end (open the run,
-render the 90 training views, fuse, mesh, write) against the issue's 60 s.
+Then, unless ``--lego-time 0``, NeRF-synthetic lego at 100 x 100: the hash-grid field with
+random backgrounds (the default), with the fixed white one, and with the alpha loss instead,
+splats with and without the alpha loss, each trained for ``--lego-time`` seconds, held-out PSNR
+and opacity error side by side (opacity training must not cost PSNR); then the mesh of the first
+exported at 256^3, timed end to end (open the run, render the 90 training views, fuse, mesh,
+write) against the issue's 60 s.
 
 Pictures of every mesh and cloud go to ``--out``. Run: ``make bench-geometry`` (= ``python
 benchmarks/bench_geometry.py``); the record goes to ``benchmarks/records/geometry.json``.
@@ -127,6 +128,8 @@ def lego_part(args, record: Record) -> None:
                                                                random_background=True, **common),
         ("ngp", "fixed background"): lambda out: train_field(str(LEGO), model="ngp", out=out, steps=100_000,
                                                              random_background=False, **common),
+        ("ngp", "alpha loss 0.1"): lambda out: train_field(str(LEGO), model="ngp", out=out, steps=100_000,
+                                                           random_background=False, alpha_loss=0.1, **common),
         ("splat", "alpha loss 0.1"): lambda out: train_splats(str(LEGO), out=out, steps=30_000, alpha_loss=0.1,
                                                               **common),
         ("splat", "no alpha loss"): lambda out: train_splats(str(LEGO), out=out, steps=30_000, alpha_loss=0.0,

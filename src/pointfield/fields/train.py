@@ -60,12 +60,13 @@ from pointfield.scenes.heldout import (
 )
 from pointfield.scenes.scene import Scene
 from pointfield.training import lifecycle
-from pointfield.training.backgrounds import (
+from pointfield.training.loop import TrainingState
+from pointfield.training.opacity import (
+    alpha_loss_weight,
     recomposite,
     transparency_of,
     uses_random_background,
 )
-from pointfield.training.loop import TrainingState
 from pointfield.training.run import RunDirectory
 from pointfield.training.task import Step, Task
 from pointfield.viz.plots import plot_training_curves
@@ -118,6 +119,7 @@ class NerfTask(Task):
             "eval_every": settings["eval_every"],
             "eval_views": int(settings["eval_views"]),
             "random_background": settings.get("random_background"),
+            "alpha_loss": settings.get("alpha_loss"),
         }
         if config["batch_rays"] < 1 or config["steps"] < 1 or (config["eval_every"] or 1) < 1:
             raise PointfieldError("--batch-rays, --steps and --eval-every must be positive")
@@ -140,9 +142,14 @@ class NerfTask(Task):
         self.model = self.trained = build_field(config, device)
         self.rays, self.colors = scene_rays(self.scene, self.train_frames, device)
         self.background = torch.as_tensor(self.scene.background, dtype=torch.float32, device=device)
+        # Opacity trained towards the images' alpha where they have it (training/opacity.py).
+        self.alpha_loss = alpha_loss_weight(config.get("alpha_loss"), self.scene, self.train_frames, default=0.0)
+        self.random_background = uses_random_background(config.get("random_background"), self.scene,
+                                                        self.train_frames)
         self.transparency = None
-        if uses_random_background(config.get("random_background"), self.scene, self.train_frames):
-            self.transparency = transparency_of(self.scene, self.train_frames).to(device)
+        if self.alpha_loss or self.random_background:
+            self.transparency = transparency_of(self.scene, self.train_frames)
+            self.transparency = None if self.transparency is None else self.transparency.to(device)
         self.near, self.far = depth_bounds(self.scene)
         self.steps_per_epoch = math.ceil(len(self.rays) / config["batch_rays"])
         self.round_steps = config["eval_every"] or min(self.steps_per_epoch, 500)
@@ -193,12 +200,15 @@ class NerfTask(Task):
         self.model.before_step(int(step), generator)
         indices = self._rays_of_step(int(step), generator)
         background, target = self.background, self.colors[indices]
-        if self.transparency is not None:
-            # A random colour behind each ray: opacity must match alpha (training/backgrounds.py).
+        if self.random_background and self.transparency is not None:
+            # A random colour behind each ray: opacity must match alpha (training/opacity.py).
             background = torch.rand(len(indices), 3, generator=generator).to(self.device)
             target = recomposite(target, self.transparency[indices], self.background, background)
         output = self.model(self.rays[indices], background, jitter=True)
         losses = [torch.mean((rendered.color - target) ** 2) for rendered in output.passes]
+        if self.alpha_loss and self.transparency is not None:
+            alpha = 1 - self.transparency[indices]
+            losses.append(self.alpha_loss * (output.passes[-1].opacity - alpha).abs().mean())
         stats = {"psnr": psnr_from_mse(float(losses[-1].detach()))}
         if self.budget is not None:
             self.budget.update(len(indices), output.samples)
@@ -236,7 +246,7 @@ class NerfTask(Task):
 def train(
     scene: str | os.PathLike[str] | None = None,
     *,
-    model: str = "tiny",
+    model: str = "ngp",
     out: str | os.PathLike[str] = "runs/nerf",
     steps: int | None = None,
     max_time: float | None = None,
@@ -245,6 +255,7 @@ def train(
     holdout_every: int | None = None,
     background: str | Sequence[float] | None = None,
     random_background: bool | None = None,
+    alpha_loss: float | None = None,
     device: str | None = None,
     seed: int = 0,
     resume: bool = False,
@@ -260,15 +271,17 @@ def train(
 ) -> dict[str, Any]:
     """Train a NeRF model on ``scene`` into run folder ``out``; returns the final metrics.
 
+    ``model`` is "ngp" (the hash-grid field, the default: the fast one), "tiny" (the lesson's
+    TinyNeRF) or "nerf" (the original coarse + fine NeRF).
     ``steps`` defaults to 2000 (tiny), 5000 (nerf) or 3000 (ngp); ``max_time`` stops earlier
     (seconds of training, summed over resumed sessions). Every ``eval_every`` steps (default:
     one epoch, at most 500 steps) the first ``eval_views`` held-out views are rendered and
     scored. Without ``scene``, the synthetic cube of ``cube_views`` views of ``cube_size``
     pixels square is rendered and trained on. ``background`` ("white", "black" or an RGB
     triple) replaces the scene's: images' alpha is composited onto it and so is every render.
-    ``random_background`` trains against a random colour behind each ray where the images have
-    alpha (:mod:`pointfield.training.backgrounds`; None: whenever they do), so that the model's
-    opacity matches the images' alpha.
+    Where the images have alpha, opacity is trained towards it (:mod:`pointfield.training.opacity`):
+    ``random_background`` draws a random colour behind each ray (None: on), and ``alpha_loss`` adds
+    ``weight * mean |opacity - alpha|`` to the loss (None: 0, off).
     ``model_options`` go to the model's constructor (``samples`` for tiny,
     ``coarse_samples``/``fine_samples`` for nerf). ``scene_box`` (ngp only; see
     :func:`pointfield.fields.scene_box.scene_bounds`): "auto", "bounded", "unbounded" or six
@@ -280,7 +293,7 @@ def train(
     settings = {
         "scene": scene, "model": model, "model_options": model_options, "steps": steps,
         "batch_rays": batch_rays, "downscale": downscale, "holdout_every": holdout_every,
-        "background": background, "random_background": random_background, "seed": seed,
+        "background": background, "random_background": random_background, "alpha_loss": alpha_loss, "seed": seed,
         "eval_every": eval_every, "eval_views": eval_views, "learning_rate": learning_rate, "scene_box": scene_box if isinstance(scene_box, str) else list(scene_box),
         "cube_views": cube_views, "cube_size": cube_size,
     }

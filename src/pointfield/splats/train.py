@@ -15,9 +15,9 @@ rate per parameter (gsplat's: means ``1.6e-4 x scene scale`` decayed exponential
 hundredth, scales ``5e-3``, rotations ``1e-3``, opacities ``5e-2``, SH ``2.5e-3`` and a
 twentieth of it for the higher bands). Where the images have alpha (objects on a transparent
 background), ``0.1 mean |rendered opacity - alpha|`` is added, so that no splat haze lingers in
-empty space and no surface the colour of the background turns transparent (the fields get the
-same from random backgrounds, :mod:`pointfield.training.backgrounds`; for splats a random
-background per image cost 0.7 dB on the synthetic cube).
+empty space and no surface the colour of the background turns transparent (as for the fields:
+:mod:`pointfield.training.opacity`; a random background per image instead cost 0.7 dB on the
+synthetic cube).
 :class:`~pointfield.splats.densification.DefaultStrategy` grows and prunes the splats from step 500 to half the run, never beyond ``max_splats``.
 
 :class:`SplatTask` is this recipe as the one training lifecycle (:mod:`pointfield.training`)
@@ -62,6 +62,7 @@ from pointfield.splats.run import (
 )
 from pointfield.training import lifecycle
 from pointfield.training.loop import TrainingState
+from pointfield.training.opacity import alpha_loss_weight
 from pointfield.training.run import RunDirectory
 from pointfield.training.task import Step, Task
 from pointfield.viz.plots import plot_training_curves
@@ -70,8 +71,6 @@ from pointfield.viz.views import save_panels
 DEFAULT_STEPS = 3000
 DEFAULT_MAX_SPLATS = 200_000
 DEFAULT_INITIAL_SPLATS = 20_000
-DEFAULT_ALPHA_LOSS = 0.1
-"""Weight of ``mean |opacity - alpha|`` in the loss where training images have alpha."""
 CURVES_PNG = "training_curves.png"
 HELDOUT_DIR = "heldout"
 LEARNING_RATES = {
@@ -178,9 +177,7 @@ class SplatTask(Task):
         self.images = {int(i): torch.from_numpy(self.scene.image(int(i))).to(device) for i in self.train_frames}
         self.background = torch.as_tensor(self.scene.background, dtype=torch.float32, device=device)
         # Where the images have alpha, the rendered opacity is trained towards it too (module docstring).
-        weight = config.get("alpha_loss")
-        has_alpha = self.scene.alpha(int(self.train_frames[0])) is not None
-        self.alpha_loss = float(DEFAULT_ALPHA_LOSS if weight is None else weight) if has_alpha else 0.0
+        self.alpha_loss = alpha_loss_weight(config.get("alpha_loss"), self.scene, self.train_frames)
         self.alphas = ({int(i): torch.from_numpy(self.scene.alpha(int(i))).to(device) for i in self.train_frames}
                        if self.alpha_loss else {})
         self.epochs = math.ceil(total / config["eval_every"])
