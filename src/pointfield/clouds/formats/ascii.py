@@ -4,7 +4,7 @@ XYZ / PTS / CSV), and the one writer of rows of numbers.
 There are two ways in, a fast one and a general one, and a format tries them in that order:
 
 - :func:`read_table` reads rows of numbers exactly one delimiter apart into typed columns with
-  pyarrow's multi-threaded CSV reader, several times faster than numpy for large files (the
+  pyarrow's CSV reader (one thread: see read_table), several times faster than numpy (the
   README's dependency note). Integers stay exact, since each column is parsed as its own type.
   Anything else it refuses with a :class:`TableError` saying what it found.
 - :func:`parse_numbers` and :func:`numbers_by_line` read every whitespace-separated number as
@@ -85,9 +85,12 @@ def read_table(
         # that it is empty on every line costs a tenth of the parse.
         names.append("end")
     try:
+        # One thread: pyarrow 26's CSV thread pool, once used, aborts the interpreter at exit in about
+        # one process in five when torch is loaded too ("terminate called without an active
+        # exception", status 134). On two cores the threads gained at most 2x on a 2 M-point file.
         table = pa_csv.read_csv(
             pa.py_buffer(data),
-            read_options=pa_csv.ReadOptions(column_names=names),
+            read_options=pa_csv.ReadOptions(column_names=names, use_threads=False),
             parse_options=pa_csv.ParseOptions(
                 delimiter=delimiter, quote_char=False, double_quote=False
             ),

@@ -193,9 +193,9 @@ def _column_to_write(path: Path, element: str, name: str, values: np.ndarray) ->
 def _as_int32_indices(faces: np.ndarray) -> np.ndarray:
     """Vertex indices as PLY's usual ``int`` where they fit (every mesh under 2**31 vertices), without
     the 64-bit narrowing warning: a face's vertex index is an index, whatever dtype it was kept in."""
-    if faces.dtype != object and faces.dtype.kind in "iu" and faces.dtype.itemsize > 4 and faces.size:
-        if 0 <= faces.min() and faces.max() <= np.iinfo(np.int32).max:
-            return faces.astype(np.int32)
+    wide = faces.dtype != object and faces.dtype.kind in "iu" and faces.dtype.itemsize > 4 and faces.size
+    if wide and 0 <= faces.min() and faces.max() <= np.iinfo(np.int32).max:
+        return faces.astype(np.int32)
     return faces
 
 
