@@ -1,4 +1,4 @@
-"""The demo: the built-in clouds round-trip through every format; failures are caught; NeRF."""
+"""The demo: the built-in clouds round-trip through every format; failures are caught; a scene is reconstructed."""
 
 from __future__ import annotations
 
@@ -7,17 +7,17 @@ import pytest
 from PIL import Image
 
 from pointfield.cli import main
-from pointfield.clouds import synthetic
-from pointfield.clouds.cloud import PointCloud
-from pointfield.clouds.formats import formats
 from pointfield.cli.demo import (
-    NERF_QUICK_SETTINGS,
+    SCENE_QUICK_SETTINGS,
     RoundTrip,
     compare,
     demo_clouds,
+    reconstruct_scene,
     run_demo,
-    train_nerf_cube,
 )
+from pointfield.clouds import synthetic
+from pointfield.clouds.cloud import PointCloud
+from pointfield.clouds.formats import formats
 from pointfield.errors import PointfieldError
 
 
@@ -81,37 +81,50 @@ def test_cli_demo_exits_zero_and_writes_the_sheet(tmp_path, capsys):
     assert (tmp_path / "clouds.png").is_file()
 
 
-def test_the_nerf_part_trains_on_the_cube_and_writes_a_turntable(demo):
+def test_the_scene_part_trains_both_models_and_exports_the_fields_geometry(demo):
     import imageio.v3 as iio
 
+    from pointfield.clouds.formats import read
+
     report, printed, out_dir = demo
-    nerf = report.nerf
-    assert nerf.run == out_dir / "nerf-cube" and (nerf.run / "metrics.json").is_file()
-    assert nerf.metrics["steps"] == NERF_QUICK_SETTINGS.steps
-    frames = iio.imread(nerf.turntable, index=None)
-    size = NERF_QUICK_SETTINGS.size
-    # colour | depth | opacity side by side
-    assert frames.shape[:3] == (NERF_QUICK_SETTINGS.frames, size, 3 * size)
-    assert f"held-out PSNR {nerf.metrics['psnr']:.2f} dB" in printed
-    assert str(nerf.turntable) in printed and str(nerf.run) in printed
+    scene = report.scene
+    assert scene.runs == {"ngp": out_dir / "ngp-cube", "splats": out_dir / "splats-cube"}
+    size = SCENE_QUICK_SETTINGS.size
+    for model, run in scene.runs.items():
+        metrics = scene.metrics[model]
+        assert (run / "metrics.json").is_file()
+        assert metrics["steps"] == getattr(SCENE_QUICK_SETTINGS, f"{model.rstrip('s')}_steps")
+        assert f"held-out PSNR {metrics['psnr']:.2f} dB" in printed
+        frames = iio.imread(scene.turntables[model], index=None)
+        assert frames.shape[:3] == (SCENE_QUICK_SETTINGS.frames, size, 3 * size)  # colour | depth | opacity
+        assert str(scene.turntables[model]) in printed
+    assert len(read(scene.mesh).faces) > 0 and len(read(scene.cloud)) > 0
+    for picture in scene.pictures:
+        with Image.open(picture) as png:
+            assert (np.asarray(png.convert("RGB")) != 255).any(axis=2).mean() > 0.01, picture.name
 
 
-def test_a_second_demo_replaces_the_nerf_run_of_the_first(tmp_path):
-    first = train_nerf_cube(tmp_path / "nerf-cube", NERF_QUICK_SETTINGS, progress=False,
-                            print_fn=lambda line: None)
-    (first.run / "left-by-the-first.txt").write_text("x")
-    second = train_nerf_cube(tmp_path / "nerf-cube", NERF_QUICK_SETTINGS, progress=False,
-                             print_fn=lambda line: None)
-    assert second.turntable.is_file() and not (second.run / "left-by-the-first.txt").exists()
+def test_the_demo_ends_with_what_to_look_at_and_the_next_commands(demo):
+    _, printed, out_dir = demo
+    ending = printed[printed.rindex("Look at:"):]
+    assert str(out_dir / "clouds.png") in ending
+    assert "Next:" in ending and "pointfield view" in ending and "pointfield nerf export" in ending
 
 
-def test_the_nerf_part_refuses_to_replace_a_folder_that_is_not_its_run(tmp_path):
-    precious = tmp_path / "nerf-cube" / "precious.txt"
+def test_a_second_demo_replaces_the_runs_of_the_first(demo, tmp_path):
+    report, _, out_dir = demo
+    (report.scene.runs["ngp"] / "left-by-the-first.txt").write_text("x")
+    second = reconstruct_scene(out_dir, SCENE_QUICK_SETTINGS, progress=False, print_fn=lambda line: None)
+    assert second.turntables["ngp"].is_file()
+    assert not (second.runs["ngp"] / "left-by-the-first.txt").exists()
+
+
+def test_the_scene_part_refuses_to_replace_a_folder_that_is_not_its_run(tmp_path):
+    precious = tmp_path / "splats-cube" / "precious.txt"
     precious.parent.mkdir()
     precious.write_text("keep me")
-    with pytest.raises(PointfieldError, match="something other than the demo's NeRF run"):
-        train_nerf_cube(precious.parent, NERF_QUICK_SETTINGS, progress=False,
-                        print_fn=lambda line: None)
+    with pytest.raises(PointfieldError, match="something other than a run of the demo"):
+        reconstruct_scene(tmp_path, SCENE_QUICK_SETTINGS, progress=False, print_fn=lambda line: None)
     assert precious.read_text() == "keep me"
 
 
@@ -177,5 +190,5 @@ def test_cli_demo_exits_non_zero_when_a_round_trip_loses_data(tmp_path, monkeypa
         return cloud
 
     monkeypatch.setattr(demo_module, "read", read_dropping_colors)
-    assert main(["demo", "--out", str(tmp_path), "--quick"]) == 1
+    assert main(["demo", "--out", str(tmp_path), "--quick", "--clouds-only"]) == 1
     assert "FAILED: colors lost without a warning" in capsys.readouterr().out

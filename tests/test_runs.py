@@ -22,7 +22,7 @@ def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("runs")
     pointfield.classify.train(out=root / "classify", epochs=1, points=64, shapes_per_class=4,
                               batch_size=8, device="cpu", progress=False)
-    train_field(out=root / "tiny", steps=4, eval_every=2, batch_rays=128, model_options={"samples": 8}, **CUBE)
+    train_field(out=root / "tiny", model="tiny", steps=4, eval_every=2, batch_rays=128, model_options={"samples": 8}, **CUBE)
     train_field(out=root / "ngp", model="ngp", steps=4, eval_every=2, **CUBE)
     train_splats(out=root / "splat", steps=4, eval_every=2, initial_splats=200, **CUBE)
     return root

@@ -11,7 +11,7 @@ from pointfield.fields.run import evaluate, render
 from pointfield.fields.train import train
 from pointfield.scenes import make_scene
 
-TINY = dict(batch_rays=128, steps=4, eval_every=2, cube_views=12, cube_size=12, device="cpu",
+TINY = dict(model="tiny", batch_rays=128, steps=4, eval_every=2, cube_views=12, cube_size=12, device="cpu",
             progress=False, model_options={"samples": 8})
 
 
@@ -121,7 +121,7 @@ def test_a_scene_without_images_is_a_clear_error_and_creates_no_run(tmp_path, ca
         "frames": [{"file_path": "./train/r_0", "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}],
     }))
     out = tmp_path / "run"
-    assert main(["nerf", "train", str(scene), "--out", str(out), "--steps", "1", "--holdout-every", "2"]) == 1
+    assert main(["nerf", "train", str(scene), "--model", "tiny", "--out", str(out), "--steps", "1", "--holdout-every", "2"]) == 1
     assert "no frame has its image" in capsys.readouterr().err
     assert not (out / "config.json").exists()
 
@@ -129,7 +129,7 @@ def test_a_scene_without_images_is_a_clear_error_and_creates_no_run(tmp_path, ca
 def test_cli_train_and_eval_json(tmp_path, capsys):
     scene = make_scene("cube", tmp_path / "cube", views=12, size=12)
     out = tmp_path / "cli"
-    code = main(["nerf", "train", str(scene), "--out", str(out), "--steps", "2", "--batch-rays", "64",
+    code = main(["nerf", "train", str(scene), "--model", "tiny", "--out", str(out), "--steps", "2", "--batch-rays", "64",
                  "--device", "cpu", "--no-progress", "--eval-every", "2"])
     assert code == 0
     capsys.readouterr()
@@ -156,3 +156,16 @@ def test_lego_at_100_pixels_holds_every_tenth_view_out(shared_data):
     assert (len(train_frames), len(heldout)) == (90, 10)
     assert int(scene.cameras.width[0]) == int(scene.cameras.height[0]) == 100
     assert scene.background.tolist() == [1.0, 1.0, 1.0]
+
+
+def test_nerf_train_defaults_to_the_hash_grid_field_and_help_names_every_model(capsys):
+    import inspect
+
+    from pointfield.cli import build_parser
+
+    assert build_parser().parse_args(["nerf", "train"]).model == "ngp"
+    assert inspect.signature(train).parameters["model"].default == "ngp"
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    nerf_line = " ".join(capsys.readouterr().out.split()).split(" nerf ", 1)[1].split(" splat ", 1)[0]
+    assert all(name in nerf_line for name in ("ngp", "TinyNeRF", "NeRF"))
