@@ -12,11 +12,21 @@ import sys
 from collections.abc import Sequence
 
 import pointfield
-from pointfield.cli import classify, cloud, demo, nerf, scene, segment, splat
+from pointfield.cli import (
+    classify,
+    cloud,
+    demo,
+    nerf,
+    route,
+    scene,
+    segment,
+    splat,
+    view,
+)
 from pointfield.errors import PointfieldError
 
 # Each module exposes add_parser(subparsers); order is the order `pointfield --help` lists them.
-VERB_GROUPS = (cloud, classify, segment, scene, nerf, splat, demo)
+VERB_GROUPS = (cloud, classify, segment, scene, nerf, splat, view, route, demo)
 
 
 def build_parser() -> argparse.ArgumentParser:

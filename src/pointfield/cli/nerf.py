@@ -1,4 +1,4 @@
-"""``pointfield nerf train|eval|render|export|exercise``: neural radiance fields (TinyNeRF, NeRF).
+"""``pointfield nerf train|eval|render|export|exercise``: radiance fields (TinyNeRF, NeRF, the hash-grid field ngp).
 
 Each subcommand calls the Python function of the same name and arguments:
 :func:`pointfield.fields.train.train`, :func:`pointfield.fields.run.evaluate`,
@@ -12,7 +12,12 @@ import argparse
 import json
 from pathlib import Path
 
-from pointfield.cli.geometry_options import add_cloud_options, export_geometry_of, opacity_error_text
+from pointfield.cli.geometry_options import (
+    add_cloud_options,
+    export_geometry_of,
+    opacity_error_text,
+)
+from pointfield.cli.view import add_view_options, finish_training_view, training_view
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
 
@@ -21,20 +26,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Add ``nerf`` and its subcommands to the ``pointfield`` parser."""
     group = subparsers.add_parser(
         "nerf",
-        help="train radiance fields on posed images and render new views (TinyNeRF, NeRF)",
-        description="Reconstruct a scene from posed photos with NeRF and render new views. SCENE "
-        "is any posed-image dataset pointfield reads (Blender / NeRF-synthetic, nerfstudio "
-        "transforms.json, LLFF, COLMAP, tiny_nerf_data.npz); without SCENE, the built-in "
-        "synthetic cube.",
+        help="train radiance fields on posed images and render new views (hash-grid ngp, TinyNeRF, NeRF)",
+        description="Reconstruct a scene from posed photos as a radiance field and render new views: "
+        "ngp, the hash-grid field (Instant-NGP; the default, minutes on a CPU), TinyNeRF (the lesson's "
+        "small MLP) or NeRF (the original). SCENE is any posed-image dataset pointfield reads "
+        "(Blender / NeRF-synthetic, nerfstudio transforms.json, LLFF, COLMAP, tiny_nerf_data.npz); "
+        "without SCENE, the built-in synthetic cube.",
     )
     verbs = group.add_subparsers(dest="verb", metavar="SUBCOMMAND", required=True)
 
-    train = verbs.add_parser("train", help="train a NeRF model into a run folder")
+    train = verbs.add_parser("train", help="train a radiance field (default: the hash-grid field, ngp) into a run folder")
     train.add_argument("scene", nargs="?", type=Path, metavar="SCENE",
                        help="posed-image dataset (default: the built-in synthetic cube)")
-    train.add_argument("--model", choices=("tiny", "nerf", "ngp"), default="tiny",
-                       help="tiny (TinyNeRF, 4x128, 64 samples; default), nerf (8x256 coarse + fine) or "
-                       "ngp (hash grid, occupancy grid / proposal sampler: the fast one)")
+    train.add_argument("--model", choices=("tiny", "nerf", "ngp"), default="ngp",
+                       help="ngp (hash grid, occupancy grid / proposal sampler: the fast one; default), "
+                       "tiny (the lesson's TinyNeRF, 4x128, 64 samples) or nerf (8x256 coarse + fine)")
     train.add_argument("--out", type=Path, default=Path("runs/nerf"), help="run folder (default runs/nerf)")
     train.add_argument("--steps", type=int, help="optimizer steps (default: tiny 2000, nerf 5000, ngp 3000)")
     train.add_argument("--max-time", type=float, metavar="SECONDS", help="stop after this much training time")
@@ -45,7 +51,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--background", help="white, black or 'r,g,b' to composite alpha onto (default: the scene's)")
     train.add_argument("--random-background", action=argparse.BooleanOptionalAction, default=None,
                        help="train against a random colour behind each ray, so that opacity matches the images' "
-                            "alpha (default: where the images have alpha)")
+                            "alpha (default: on where the images have alpha)")
+    train.add_argument("--alpha-loss", type=float, default=None, metavar="WEIGHT",
+                       help="add WEIGHT x |rendered opacity - alpha| to the loss where the images have alpha "
+                            "(default 0: off)")
     train.add_argument("--eval-every", type=int, metavar="STEPS",
                        help="evaluate on held-out views every STEPS steps (default: every epoch, at most 500)")
     train.add_argument("--lr", dest="learning_rate", type=float,
@@ -57,6 +66,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     train.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    add_view_options(train)
     train.set_defaults(run=run_train)
 
     evaluate = verbs.add_parser("eval", help="PSNR and SSIM of a trained run on its held-out views")
@@ -115,15 +125,17 @@ def run_train(args: argparse.Namespace) -> int:
     background = args.background
     if background is not None and "," in background:
         background = [float(value) for value in background.split(",")]
+    view = training_view(args)
     metrics = train(
         args.scene, model=args.model, out=args.out, steps=args.steps, max_time=args.max_time,
         batch_rays=args.batch_rays, downscale=args.downscale, holdout_every=args.holdout_every,
-        background=background, random_background=args.random_background, device=args.device, seed=args.seed, resume=args.resume,
+        background=background, random_background=args.random_background, alpha_loss=args.alpha_loss, device=args.device, seed=args.seed, resume=args.resume,
         eval_every=args.eval_every, learning_rate=args.learning_rate, progress=args.progress,
         scene_box=[float(v) for v in args.scene_box.split(",")] if "," in args.scene_box else args.scene_box,
     )
     print(f"nerf run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
           f"{opacity_error_text(metrics)}({metrics['steps']} steps, {metrics['seconds']:.0f} s); see {args.out / 'metrics.json'}")
+    finish_training_view(view)
     return 0
 
 

@@ -10,7 +10,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pointfield.cli.geometry_options import add_cloud_options, export_geometry_of, opacity_error_text
+from pointfield.cli.geometry_options import (
+    add_cloud_options,
+    export_geometry_of,
+    opacity_error_text,
+)
+from pointfield.cli.view import add_view_options, finish_training_view, training_view
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
 DEFAULT_MAX_SPLATS = 200_000  # pointfield.splats.train.DEFAULT_MAX_SPLATS, without importing torch
@@ -51,6 +56,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     train.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     train.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    add_view_options(train)
     train.set_defaults(run=run_train)
 
     render = verbs.add_parser(
@@ -95,6 +101,7 @@ def run_train(args: argparse.Namespace) -> int:
     background = args.background
     if background is not None and "," in background:
         background = [float(value) for value in background.split(",")]
+    view = training_view(args)
     metrics = train(
         args.scene, out=args.out, steps=args.steps, max_time=args.max_time, downscale=args.downscale,
         holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss, device=args.device,
@@ -105,6 +112,7 @@ def run_train(args: argparse.Namespace) -> int:
     print(f"splat run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
           f"{opacity_error_text(metrics)}{metrics['splats']:,} splats ({metrics['steps']} steps, {metrics['seconds']:.0f} s); "
           f"see {args.out / 'metrics.json'}")
+    finish_training_view(view)
     return 0
 
 

@@ -24,6 +24,12 @@ Resuming restores the model, optimizer, scheduler, torch's random generator and 
 within the epoch, and rewrites ``metrics.jsonl`` from the history kept in the checkpoint, so
 a run killed at any moment — even between two files being written — resumes and finishes
 with one line per epoch.
+
+Watching: inside ``with watched_by(watcher):`` every :func:`fit` (on rank 0) calls
+``watcher.after_step(model, state, loss)`` after each optimizer step, in the training thread, so
+the watcher sees the model between steps, never during one. It returns the seconds it held
+training paused, which the clock leaves out; the time it spends otherwise (the browser viewer
+rendering a frame, :mod:`pointfield.viewer.training`) counts as training time.
 """
 
 from __future__ import annotations
@@ -32,9 +38,10 @@ import itertools
 import math
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import torch
 from torch import nn
@@ -69,6 +76,26 @@ class TrainingState:
     def training_seconds(self) -> float:
         """Wall clock minus evaluation: the one clock every time-to-PSNR figure reads."""
         return self.seconds - self.evaluation_seconds
+
+
+class Watcher(Protocol):
+    """Something that sees training step by step (the browser viewer); see the module doc."""
+
+    def after_step(self, model: nn.Module, state: TrainingState, loss: float) -> float:
+        """Called after each optimizer step; returns the seconds it held training paused."""
+
+
+_watchers: list[Watcher] = []
+
+
+@contextmanager
+def watched_by(watcher: Watcher) -> Iterator[Watcher]:
+    """Within the block, every :func:`fit` calls ``watcher.after_step`` after each step (rank 0 only)."""
+    _watchers.append(watcher)
+    try:
+        yield watcher
+    finally:
+        _watchers.remove(watcher)
 
 
 def fit(
@@ -151,7 +178,10 @@ def fit(
             optimizer.step()
             state.step += 1
             state.batch += 1
-            _accumulate(state.running, {"loss": float(loss.detach()), **stats})
+            loss_value = float(loss.detach())
+            _accumulate(state.running, {"loss": loss_value, **stats})
+            for watcher in _watchers if is_main else ():
+                session_start += watcher.after_step(model, state, loss_value)  # paused: off the clock
             state.seconds = seconds_before + time.perf_counter() - session_start
             bar.update(1)
             bar.set_postfix(_running_means(state.running))

@@ -1,0 +1,307 @@
+"""What the browser viewer costs: first frame of a large scan, streaming frame rates, training with --view.
+
+The claims (issue 15), all measured through headless Chromium (:mod:`pointfield.viewer.browser`):
+
+1. ``pointfield view`` on a 10-million-point LAZ shows its first frame in the browser within 5 s:
+   from starting the command to the first screenshot whose canvas shows the cloud (the browser
+   already running, as a user's is; it opens the page the moment the command prints its URL).
+   The decimated cloud that replaces the quick preview is timed too.
+2. Server-side streaming while the camera moves, 256 x 256 frames on 2 CPU threads: splats at
+   least 10 frames per second, the hash-grid field (ngp) at least 3; and a full-resolution frame
+   once the camera stops.
+3. Training with ``--view`` and one connected browser (its camera moving) is at most 10 % slower
+   per step than without.
+
+The LAZ file is generated here (laspy): an airborne-like scan -- scan lines swept across a
+1 km x 1 km tile of smooth terrain, in acquisition order, with intensity, classification, GPS
+time and colour -- written to ``bench-output/viewer/``. The runs of claim 2 are trained here on
+lego at 100 x 100 unless given (``--ngp-run``, ``--splat-run``).
+
+Run: ``make bench-viewer`` (or ``python benchmarks/bench_viewer.py``); the record goes to
+``benchmarks/records/viewer.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import laspy
+import numpy as np
+import torch
+from harness import ROOT, Record
+
+from pointfield.viewer.browser import (
+    SCENE_REGION,
+    chromium,
+    crop,
+    object_pixels,
+    open_page,
+    screenshot,
+    wait_for,
+)
+
+OUTPUT = ROOT / "bench-output" / "viewer"
+LEGO = ROOT.parent / "shared" / "data" / "nerf" / "lego_blender"
+FIRST_FRAME_TARGET = 5.0
+FPS_TARGETS = {"splats": 10.0, "ngp": 3.0}
+SLOWDOWN_TARGET = 0.10
+OBJECT_PIXELS = 1500
+
+
+# -- 1. first frame of a 10-million-point LAZ ----------------------------------------------------
+
+
+def make_scan(path: Path, points: int, seed: int = 0) -> Path:
+    """An airborne-like LAZ scan of ``points`` points (see the module doc); kept when it exists."""
+    if path.is_file():
+        with laspy.open(path) as reader:
+            if reader.header.point_count == points:
+                return path
+    rng = np.random.default_rng(seed)
+    per_line = 2000
+    index = np.arange(points)
+    line, position = np.divmod(index, per_line)
+    sweep = np.where(line % 2 == 0, position, per_line - 1 - position) / per_line
+    x = sweep * 1000 + rng.normal(0, 0.05, points)
+    y = line * (1000 / (points // per_line)) + rng.normal(0, 0.05, points)
+    z = 20 * np.sin(x / 100) + 10 * np.cos(y / 70) + rng.normal(0, 0.05, points)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.offsets, header.scales = np.array([636000.0, 849000.0, 0.0]), np.array([0.01, 0.01, 0.01])
+    scan = laspy.LasData(header)
+    scan.x, scan.y, scan.z = 636000 + x, 849000 + y, 100 + z
+    scan.intensity = (1000 + 500 * np.sin(x / 30) * np.cos(y / 40) + rng.normal(0, 20, points)).astype(np.uint16)
+    scan.classification = np.where(z > 15, 5, 2).astype(np.uint8)
+    scan.gps_time = index * 1e-5
+    scan.red, scan.green = (x / 1000 * 65535).astype(np.uint16), (y / 1000 * 65535).astype(np.uint16)
+    scan.blue = np.full(points, 30000, np.uint16)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    scan.write(path)
+    return path
+
+
+def first_frame(browser, scan: Path) -> dict[str, float]:
+    """Seconds from starting ``pointfield view`` to the first picture of the cloud, and to the full cloud."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    started = time.perf_counter()
+    process = subprocess.Popen([sys.executable, "-m", "pointfield", "view", str(scan), "--port", "0"],
+                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
+    try:
+        line = process.stdout.readline()
+        url = line.split("open ", 1)[1].split(";")[0].split(" ")[0]
+        printed = time.perf_counter() - started
+        page = open_page(browser, url)
+
+        def seen():
+            return object_pixels(crop(screenshot(page, canvas_only=True), SCENE_REGION)) >= OBJECT_PIXELS or None
+
+        wait_for(seen, 60, "the cloud in the browser", poll=0.02)
+        first = time.perf_counter() - started
+        wait_for(lambda: ("showing 2," in page.inner_text("body") and "preview" not in page.inner_text("body"))
+                 or None, 120, "the decimated cloud", poll=0.1)
+        full = time.perf_counter() - started
+        page.close()
+        return {"url_printed": printed, "first_frame": first, "full_cloud": full}
+    finally:
+        process.terminate()
+        process.wait(30)
+
+
+# -- 2. streaming while the camera moves ---------------------------------------------------------
+
+
+def train_runs(ngp: Path | None, splats: Path | None, seconds: float) -> tuple[Path, Path]:
+    """The runs streamed: given, or trained on lego at 100 x 100 for ``seconds`` each (kept for next time)."""
+    from pointfield.fields.train import train as train_field
+    from pointfield.splats.train import train as train_splats
+
+    common = {"downscale": 8, "holdout_every": 10, "max_time": seconds, "progress": False}
+    if ngp is None:
+        ngp = OUTPUT / "lego-ngp"
+        if not (ngp / "metrics.json").is_file():
+            train_field(LEGO, model="ngp", out=ngp, resume=ngp.exists(), **common)
+    if splats is None:
+        splats = OUTPUT / "lego-splats"
+        if not (splats / "metrics.json").is_file():
+            train_splats(LEGO, out=splats, resume=splats.exists(), **common)
+    return ngp, splats
+
+
+def stream(browser, run: Path, server_render: bool, seconds: float) -> dict[str, float]:
+    """Frames per second drawn while the camera orbits for ``seconds``, and the still frame after."""
+    from pointfield.viewer import open_viewer
+
+    viewer, [view] = open_viewer([run], port=0)
+    try:
+        renderer = view.renderer
+        if server_render:  # a splat run starts with the browser drawing the Gaussians
+            renderer.shown.value = "rgb"
+        page = open_page(browser, viewer.url, viewport=(1024, 1024))
+        client = wait_for(lambda: next(iter(viewer.server.get_clients().values()), None), 60, "the tab")
+        wait_for(lambda: any(not f.moving for f in renderer.frames()) or None, 120, "a first full frame")
+        centre = np.asarray(client.camera.look_at, np.float64)
+        offset = np.asarray(client.camera.position, np.float64) - centre
+        before = len(renderer.frames())
+        tab = next(iter(renderer.tabs.values()))
+        version = tab.version
+        began = time.perf_counter()
+        while time.perf_counter() - began < seconds:
+            angle = 2 * np.pi * (time.perf_counter() - began) / 20  # a turn in 20 s
+            rotation = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+            client.camera.position = tuple(centre + rotation @ offset)
+            time.sleep(0.01)
+        updates = tab.version - version  # camera updates that came back from the browser
+        moving = [f for f in renderer.frames()[before:] if f.moving]
+        stopped = time.perf_counter()
+        wait_for(lambda: any(not f.moving for f in renderer.frames()[before:]) or None, 120, "the still frame")
+        still = [f for f in renderer.frames()[before:] if not f.moving][-1]
+        page.close()
+        return {
+            "fps": len(moving) / seconds, "frames": len(moving), "camera_updates_per_s": updates / seconds,
+            "moving_ms": 1000 * statistics.median(f.seconds for f in moving) if moving else float("nan"),
+            "moving_size": moving[0].size if moving else 0,
+            "still_size": still.size, "still_s": still.seconds, "still_after_s": time.perf_counter() - stopped,
+        }
+    finally:
+        viewer.close()
+
+
+# -- 3. training with --view -----------------------------------------------------------------------
+
+
+def training_cost(browser, kind: str, steps: int, rounds: int) -> dict[str, float]:
+    """Seconds per training step with and without a watched page (camera moving), interleaved."""
+    from pointfield.fields.train import train as train_field
+    from pointfield.splats.train import train as train_splats
+    from pointfield.viewer.server import start_viewer
+    from pointfield.viewer.training import TrainingView
+
+    def train(out: Path) -> float:
+        if kind == "splats":
+            metrics = train_splats(None, out=out, steps=steps, eval_every=steps, eval_views=1, cube_views=40,
+                                   cube_size=64, initial_splats=5000, progress=False)
+        else:
+            metrics = train_field(None, model="ngp", out=out, steps=steps, eval_every=steps, cube_views=40,
+                                  cube_size=64, progress=False)
+        return metrics["training_seconds"] / metrics["steps"]
+
+    per_step: dict[str, list[float]] = {"without": [], "with": []}
+    shares = []
+    with tempfile.TemporaryDirectory() as folder:
+        for round_ in range(rounds):
+            for watched in ((False, True) if round_ % 2 == 0 else (True, False)):
+                out = Path(folder) / f"{kind}-{round_}-{int(watched)}"
+                if not watched:
+                    per_step["without"].append(train(out))
+                    continue
+                viewer = start_viewer(port=0)
+                view = TrainingView(viewer, out)
+                page = open_page(browser, viewer.url)
+                moving = threading.Event()
+                moving.set()
+
+                def orbit(viewer=viewer, moving=moving) -> None:
+                    while moving.is_set():
+                        for client in viewer.server.get_clients().values():
+                            try:
+                                x, y, z = client.camera.position
+                                client.camera.position = (0.99 * x - 0.14 * y, 0.14 * x + 0.99 * y, z)
+                            except AssertionError:
+                                pass
+                        time.sleep(0.1)
+
+                wait_for(lambda viewer=viewer: viewer.server.get_clients() or None, 60, "the tab")
+                mover = threading.Thread(target=orbit, daemon=True)
+                mover.start()
+                try:
+                    with view:
+                        per_step["with"].append(train(out))
+                    shares.append(view.viewing_seconds / max(time.perf_counter() - view.started, 1e-9))
+                finally:
+                    moving.clear()
+                    mover.join()
+                    page.close()
+                    viewer.close()
+    without, watched = statistics.median(per_step["without"]), statistics.median(per_step["with"])
+    return {"without_ms": 1000 * without, "with_ms": 1000 * watched, "slowdown": watched / without - 1,
+            "viewing_share": statistics.median(shares), "runs": rounds}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--points", type=int, default=10_000_000, help="points of the generated LAZ scan")
+    parser.add_argument("--repeats", type=int, default=3, help="first-frame measurements (median)")
+    parser.add_argument("--stream-seconds", type=float, default=10.0, help="seconds of camera motion per model")
+    parser.add_argument("--ngp-run", type=Path, help="hash-grid run to stream (default: train one on lego)")
+    parser.add_argument("--splat-run", type=Path, help="splat run to stream (default: train one on lego)")
+    parser.add_argument("--train-seconds", type=float, default=180.0, help="training time of each lego run made here")
+    parser.add_argument("--steps", type=int, default=150, help="training steps per run of claim 3")
+    parser.add_argument("--rounds", type=int, default=2, help="interleaved runs with and without the page")
+    parser.add_argument("--only", choices=("first-frame", "stream", "training"), help="measure one claim")
+    args = parser.parse_args()
+    torch.set_num_threads(2)
+
+    record = Record(
+        "viewer", "The browser viewer: first frame, streaming, training with --view", issue="15",
+        about=f"Everything through headless Chromium (SwiftShader WebGL, no GPU) on this "
+              f"machine's CPU; torch on 2 threads. First frame: `pointfield view` on a generated {args.points:,}-point "
+              "LAZ scan, from starting the command to the first screenshot whose canvas shows the cloud (the "
+              "quick preview), and to the decimated 2-million-point cloud replacing it; median of "
+              f"{args.repeats}. Streaming: the browser's camera orbits for {args.stream_seconds:.0f} s while the "
+              "server renders 256 x 256 frames of lego (100 x 100 training views) into a 1024 x 1024 page, then "
+              "stops, and the server renders one 1024 x 1024 frame. Training: per-step training time "
+              "(metrics' training_seconds / steps) of splats and ngp on the synthetic cube, with and without "
+              "a watched page whose camera keeps moving, interleaved.",
+    )
+    with chromium() as browser:
+        if args.only in (None, "first-frame"):
+            scan = make_scan(OUTPUT / f"scan-{args.points // 1_000_000}M.laz", args.points)
+            runs = [first_frame(browser, scan) for _ in range(args.repeats)]
+            first = statistics.median(r["first_frame"] for r in runs)
+            full = statistics.median(r["full_cloud"] for r in runs)
+            record.figures["first_frame"] = {"runs": runs, "median_first_frame": first, "median_full_cloud": full}
+            record.table(["file", "points", "URL printed s", "first frame s", "decimated cloud s"],
+                         [[scan.name, f"{args.points:,}", f"{statistics.median(r['url_printed'] for r in runs):.2f}",
+                           f"{first:.2f}", f"{full:.2f}"]], title="first frame in the browser")
+            record.verdict(f"first frame of a {args.points:,}-point LAZ within {FIRST_FRAME_TARGET:.0f} s",
+                           first <= FIRST_FRAME_TARGET, f"{first:.2f} s")
+        if args.only in (None, "stream"):
+            ngp, splats = train_runs(args.ngp_run, args.splat_run, args.train_seconds)
+            rows = []
+            for name, run in (("splats", splats), ("ngp", ngp)):
+                result = stream(browser, run, server_render=name == "splats", seconds=args.stream_seconds)
+                record.figures[f"stream_{name}"] = result
+                rows.append([name, f"{result['moving_size']}", f"{result['camera_updates_per_s']:.1f}",
+                             f"{result['fps']:.1f}", f"{result['moving_ms']:.0f}", f"{1000 / result['moving_ms']:.1f}",
+                             f"{result['still_size']}", f"{result['still_s']:.2f}"])
+                record.verdict(f"{name} stream at least {FPS_TARGETS[name]:.0f} fps at 256 x 256 while moving",
+                               result["fps"] >= FPS_TARGETS[name], f"{result['fps']:.1f} fps")
+            record.table(["model", "moving px", "camera updates/s", "fps while moving", "median ms per frame",
+                          "fps the renders allow", "still px", "still frame s"], rows,
+                         title="server-side streaming, 2 threads")
+            record.note("fps while moving counts the frames sent while the camera orbited; it cannot exceed the "
+                        "camera updates the browser sent back. 'fps the renders allow' is 1000 / the median "
+                        "milliseconds to render, encode and send one moving frame.")
+        if args.only in (None, "training"):
+            rows = []
+            for kind in ("splats", "ngp"):
+                cost = training_cost(browser, kind, args.steps, args.rounds)
+                record.figures[f"training_{kind}"] = cost
+                rows.append([kind, f"{cost['without_ms']:.1f}", f"{cost['with_ms']:.1f}",
+                             f"{100 * cost['slowdown']:+.1f} %", f"{100 * cost['viewing_share']:.1f} %"])
+                record.verdict(f"{kind} training with --view at most {100 * SLOWDOWN_TARGET:.0f} % slower per step",
+                               cost["slowdown"] <= SLOWDOWN_TARGET, f"{100 * cost['slowdown']:+.1f} %")
+            record.table(["model", "ms per step without", "with --view", "slowdown", "time in the viewer"], rows,
+                         title="training with one connected browser")
+    return record.finish()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,171 @@
+"""A scene folder in the browser: camera frustums with thumbnails, the sparse points, the photos.
+
+:func:`show_scene` reads any scene ``pointfield scene info`` reads
+(:func:`pointfield.scenes.read_scene`) and adds, under ``/<name>``:
+
+- one frustum per camera, at its pose, with its field of view and aspect, coloured by split
+  (train grey, test / val orange); the thumbnails (:data:`THUMBNAIL_SIZE` pixels) fill in from a
+  thread while the page is already usable;
+- the scene's sparse points (COLMAP ``points3D``, ``scene from-images``), where it has them;
+- clicking a frustum shows its photo in the panel, with its name, and moves the camera there.
+
+The frustums' size follows the spread of the cameras (:func:`frustum_scale`).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from pointfield.scenes.formats.registry import read_scene
+from pointfield.scenes.paths import scene_centre_and_up
+from pointfield.scenes.scene import Scene
+from pointfield.viewer.clouds import as_uint8_rgb, typical_spacing
+from pointfield.viewer.server import Viewer, wxyz_of
+
+THUMBNAIL_SIZE = 96
+PHOTO_SIZE = 480
+SPLIT_COLOURS = {"train": (90, 90, 90), "test": (255, 140, 0), "val": (255, 140, 0)}
+
+
+def frustum_scale(scene: Scene) -> float:
+    """Frustum depth: a tenth of the cameras' mean distance to what they look at, less where
+    neighbours are closer than twice that (so that frustums do not overlap)."""
+    centres = scene.cameras.centers.double().numpy()
+    target, _ = scene_centre_and_up(scene)
+    reach = 0.1 * float(np.linalg.norm(centres - target, axis=1).mean()) or 0.1
+    if len(centres) < 2:
+        return reach
+    distances = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    np.fill_diagonal(distances, np.inf)
+    nearest = float(np.median(distances.min(axis=1)))
+    return min(reach, nearest / 2) if nearest > 0 else reach
+
+
+def scene_framing(scene: Scene, back: float = 2.0, lift: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(target, eye, up)`` for a first look at what the cameras look at: from ``back`` times
+    the first camera's distance, raised by ``lift`` times it (the defaults keep the cameras in
+    view; ``back=1, lift=0`` is the first camera's own viewpoint)."""
+    centre, up = scene_centre_and_up(scene)
+    first = scene.cameras.centers.double().numpy()[0]
+    distance = float(np.linalg.norm(first - centre)) or 1.0
+    eye = centre + back * (first - centre) + lift * distance * up
+    return centre, eye, up
+
+
+def split_of(scene: Scene) -> list[str]:
+    """The split each frame belongs to (train when it is in none)."""
+    names = ["train"] * len(scene)
+    for name in ("val", "test"):
+        for index in scene.splits.get(name, []):
+            names[int(index)] = name
+    return names
+
+
+def add_frustums(viewer: Viewer, scene: Scene, node: str, *, thumbnails: bool = True,
+                 on_click: Any = None, visible: bool = True) -> list[Any]:
+    """One frustum per camera of ``scene`` under ``node``; thumbnails fill in from a thread."""
+    cameras = scene.cameras
+    rotations = cameras.rotations.double().numpy()
+    centres = cameras.centers.double().numpy() - viewer.origin
+    scale = frustum_scale(scene)
+    splits = split_of(scene)
+    handles = []
+    for index in range(len(cameras)):
+        width, height = int(cameras.width[index]), int(cameras.height[index])
+        fov = 2 * np.arctan(0.5 * height / float(cameras.fy[index]))
+        handle = viewer.server.scene.add_camera_frustum(
+            f"{node}/{index:04d}", fov=float(fov), aspect=width / height, scale=scale,
+            thickness=scale / 60, color=SPLIT_COLOURS[splits[index]],
+            wxyz=wxyz_of(rotations[index]), position=tuple(centres[index]), visible=visible,
+        )
+        if on_click is not None:
+            handle.on_click(lambda event, i=index: on_click(i, event))
+        handles.append(handle)
+    if thumbnails:
+        def fill() -> None:
+            for index, handle in enumerate(handles):
+                if scene.frames[index].has_image:
+                    handle.image = resized(scene.image(index), THUMBNAIL_SIZE)
+
+        threading.Thread(target=fill, name="pointfield-view-thumbnails", daemon=True).start()
+    return handles
+
+
+def resized(image: np.ndarray, longest_side: int) -> np.ndarray:
+    """An ``(H, W, 3)`` float or uint8 image as uint8, at most ``longest_side`` pixels along its longer side."""
+    pixels = as_uint8_rgb(image.reshape(-1, image.shape[-1])).reshape(*image.shape[:2], 3)
+    picture = Image.fromarray(pixels)
+    picture.thumbnail((longest_side, longest_side))
+    return np.asarray(picture)
+
+
+class SceneView:
+    """A scene on the page: its frustums, sparse points and the photo panel (see the module doc)."""
+
+    def __init__(self, viewer: Viewer, scene: Scene, name: str, max_points: int):
+        self.viewer = viewer
+        self.scene = scene
+        self.name = name
+        gui = viewer.server.gui
+        with gui.add_folder(name):
+            counts = ", ".join(f"{split} {len(frames)}" for split, frames in scene.splits.items())
+            cameras = scene.cameras
+            gui.add_markdown(
+                f"{scene.metadata.get('format', 'scene')} scene, {len(scene)} cameras ({counts}), "
+                f"{int(cameras.width[0])}x{int(cameras.height[0])}"
+                + (f", {len(scene.points.points):,} sparse points" if scene.points is not None else "")
+            )
+            self.caption = gui.add_markdown("click a camera to see its photo")
+            self.photo = gui.add_image(np.zeros((9, 16, 3), np.uint8), visible=False)
+        self.frustums = add_frustums(viewer, scene, f"/{name}/cameras", on_click=self.clicked)
+        self.points = None
+        if scene.points is not None and len(scene.points.points):
+            points = np.asarray(scene.points.points, np.float64)
+            colours = scene.points.fields.get("colors")
+            colours = as_uint8_rgb(colours) if colours is not None else (200, 200, 200)
+            low, high = points.min(0), points.max(0)
+            size = typical_spacing(low, high, len(points)) / 2
+            self.points = viewer.server.scene.add_point_cloud(
+                f"/{name}/points", (points[:max_points] - viewer.origin).astype(np.float32),
+                colours if isinstance(colours, tuple) else colours[:max_points], point_size=size,
+                precision="float32",
+            )
+
+    def clicked(self, index: int, event: Any) -> None:
+        """Show camera ``index``'s photo and move the clicking tab's camera to its pose."""
+        frame = self.scene.frames[index]
+        self.caption.content = f"camera {index}: **{frame.name}**"
+        if frame.has_image:
+            self.photo.image = resized(self.scene.image(index), PHOTO_SIZE)
+            self.photo.visible = True
+        cameras = self.scene.cameras
+        camera = event.client.camera
+        centre = cameras.centers.double().numpy()[index] - self.viewer.origin
+        rotation = cameras.rotations.double().numpy()[index]
+        camera.wxyz = wxyz_of(rotation)
+        camera.position = tuple(centre)
+        camera.fov = float(2 * np.arctan(0.5 * int(cameras.height[index]) / float(cameras.fy[index])))
+
+
+def show_scene(viewer: Viewer, path: str | os.PathLike[str], name: str, *, max_points: int = 2_000_000) -> SceneView:
+    """Add the scene at ``path`` to the page (see the module doc); returns its view."""
+    scene = read_scene(Path(path))
+    centres = scene.cameras.centers.double().numpy()
+    low, high = centres.min(0), centres.max(0)
+    if scene.points is not None and len(scene.points.points):
+        low = np.minimum(low, np.asarray(scene.points.points).min(0))
+        high = np.maximum(high, np.asarray(scene.points.points).max(0))
+    viewer.recentre(low, high)
+    viewer.grow(low, high)
+    view = SceneView(viewer, scene, name, max_points)
+    if not viewer.framed:
+        target, eye, up = scene_framing(scene)
+        viewer.look_at(target, eye, up)
+        viewer.framed = True
+    return view

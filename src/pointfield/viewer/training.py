@@ -1,0 +1,193 @@
+"""``nerf train --view`` and ``splat train --view``: a run watched live in the browser.
+
+:class:`TrainingView` is a :class:`~pointfield.training.loop.Watcher`: inside
+``with TrainingView(...)`` the training loop calls it after every optimizer step, in the
+training thread (:func:`pointfield.training.loop.watched_by`). It shows, on the viewer's page:
+
+- the model as it is now, rendered from the browser's camera through the one run interface
+  (the run folder's :class:`~pointfield.scenes.run.SceneRun` around the live model), at
+  :data:`~pointfield.viewer.fields.MOVING_SIZE` pixels -- colour, depth or opacity;
+- the step, the training loss, the held-out PSNR of the last evaluation, steps per second;
+- a pause / resume button: while paused, the loop waits (the clock leaves the pause out) and
+  the view renders at full size whenever the camera stops.
+
+Viewing must not slow training much. Frames are rendered in the training thread (so the model
+is never read mid-step) only when a tab's camera moved or the model changed, and at most so often
+that rendering takes :data:`RENDER_SHARE` of the time: after a frame that took ``r`` seconds,
+the next waits ``r / RENDER_SHARE`` seconds. The page reports what viewing cost so far.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+from typing import Self
+
+import torch
+from torch import nn
+
+from pointfield.runs import RUN_CLASSES
+from pointfield.scenes.run import SceneRun
+from pointfield.training.loop import TrainingState, watched_by
+from pointfield.training.run import RunDirectory
+from pointfield.viewer.fields import BrowserRenderer, depth_range_of
+from pointfield.viewer.scenes import scene_framing
+from pointfield.viewer.server import DEFAULT_HOST, DEFAULT_PORT, Viewer, start_viewer
+
+RENDER_SHARE = 0.05
+"""Most of the training time that rendering for the browser may take (a twentieth)."""
+STATUS_EVERY = 0.5
+"""Seconds between updates of the step, loss and PSNR on the page."""
+
+
+def live_run(directory: RunDirectory, model: nn.Module, device: torch.device) -> SceneRun:
+    """The run folder's scene run around ``model``, the module being trained (not its checkpoint)."""
+    config = directory.read_config()
+    for run_class in RUN_CLASSES:
+        if config.get("task") in run_class.tasks and issubclass(run_class, SceneRun):
+            return run_class(directory, config, model, device)
+    raise ValueError(f"{directory.path}: a {config.get('task')!r} run has no view to render")
+
+
+class TrainingView:
+    """The page of a run being trained (see the module doc); a context manager around training."""
+
+    def __init__(self, viewer: Viewer, out: str | os.PathLike[str], render_share: float = RENDER_SHARE):
+        self.viewer = viewer
+        self.directory = RunDirectory(out)
+        self.render_share = render_share
+        self.run: SceneRun | None = None
+        self.renderer: BrowserRenderer | None = None
+        self._attaching: threading.Thread | None = None
+        self.resumed = threading.Event()
+        self.resumed.set()
+        self.holding = threading.Event()
+        """Set while the training loop waits in a pause."""
+        self.finished = False
+        self.viewing_seconds = 0.0
+        """Seconds the loop spent in this view, pauses excluded: what viewing cost training."""
+        self.started = time.perf_counter()
+        self.next_render = 0.0
+        self.next_status = 0.0
+        self.frames_during_training = 0
+        self._last: tuple[TrainingState, float] | None = None
+        gui = viewer.server.gui
+        with gui.add_folder("training"):
+            self.status = gui.add_markdown(f"waiting for {self.directory.path} to start ...")
+            self.pause_button = gui.add_button("pause")
+        self.pause_button.on_click(lambda _: self.toggle_pause())
+
+    # -- the page's controls --------------------------------------------------------------------
+
+    def toggle_pause(self) -> None:
+        """Pause training after the current step, or resume it."""
+        if self.resumed.is_set():
+            self.resumed.clear()
+            self.pause_button.label = "resume"
+        else:
+            self.resumed.set()
+            self.pause_button.label = "pause"
+
+    @property
+    def paused(self) -> bool:
+        return not self.resumed.is_set()
+
+    # -- the watcher ----------------------------------------------------------------------------
+
+    def after_step(self, model: nn.Module, state: TrainingState, loss: float) -> float:
+        """Update the page; render when due and cheap enough; wait while paused (see the module doc)."""
+        entered = time.perf_counter()
+        self._last = (state, loss)
+        if self.run is None and self._attaching is None:
+            # Opening the run's scene can take seconds (the synthetic cube is rendered): not here.
+            self._attaching = threading.Thread(target=self._attach, args=(model,), daemon=True,
+                                               name="pointfield-view-attach")
+            self._attaching.start()
+        if entered >= self.next_status:
+            self._report(state, loss)
+            self.next_status = entered + STATUS_EVERY
+        renderer = self.renderer
+        if renderer is not None and entered >= self.next_render:
+            renderer.invalidate()  # the model changed with this step
+            drawn = renderer.draw_due(moving_only=True)
+            if drawn:
+                took = time.perf_counter() - entered
+                self.frames_during_training += drawn
+                self.next_render = time.perf_counter() + took / self.render_share
+        self.viewing_seconds += time.perf_counter() - entered
+        if not self.paused:
+            return 0.0
+        paused_at = time.perf_counter()
+        self._report(state, loss)
+        self.holding.set()
+        while not self.resumed.wait(0.05):
+            if self.renderer is not None:
+                self.renderer.draw_due()
+        self.holding.clear()
+        self._report(state, loss)
+        return time.perf_counter() - paused_at
+
+    def _attach(self, model: nn.Module) -> None:
+        device = next(model.parameters()).device
+        run = live_run(self.directory, model, device)
+        renderer = BrowserRenderer(self.viewer, run.render, depth_range_of(run))
+        if not self.viewer.framed:
+            target, eye, up = scene_framing(run.scene, back=1.0, lift=0.2)
+            self.viewer.look_at(target, eye, up)
+            self.viewer.framed = True
+        self.run, self.renderer = run, renderer
+
+    def _report(self, state: TrainingState, loss: float) -> None:
+        heldout = next((record["psnr"] for record in reversed(state.history) if "psnr" in record), None)
+        elapsed = max(time.perf_counter() - self.started, 1e-9)
+        lines = [
+            "**paused**" if self.paused else ("**finished**" if self.finished else "**training**"),
+            f"step {state.step:,}, loss {loss:.5f}",
+            f"held-out PSNR {heldout:.2f} dB" if heldout is not None else "held-out PSNR: after the first evaluation",
+            (f"viewing cost {100 * self.viewing_seconds / elapsed:.1f} % of the time "
+             f"({self.frames_during_training} frames)"),
+        ]
+        self.status.content = "  \n".join(lines)
+
+    # -- around training --------------------------------------------------------------------------
+
+    def __enter__(self) -> Self:
+        """Start watching: every training loop calls this view after each step until :meth:`finish`."""
+        self._watching = watched_by(self)
+        self._watching.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.finish(*exc)
+
+    def finish(self, *exc: object) -> None:
+        """Stop watching; the page goes on showing the final model (rendered on camera moves)."""
+        self._watching.__exit__(*(exc or (None, None, None)))
+        self.finished = True
+        self.resumed.set()
+        self.pause_button.visible = False
+        if self._attaching is not None:
+            self._attaching.join()
+        if self.renderer is not None:
+            self.renderer.invalidate()
+            self.renderer.start()  # the final model, rendered from its own thread from now on
+        if self._last is not None:
+            self._report(*self._last)
+
+    def serve(self) -> None:
+        """Keep the page up (the trained model, rendered on camera moves) until Ctrl-C."""
+        self.viewer.serve()
+
+
+def watch_training(out: str | os.PathLike[str], host: str = DEFAULT_HOST, port: int = DEFAULT_PORT) -> TrainingView:
+    """Start the page for the run that will train into ``out`` and start watching (``nerf train --view``).
+
+    Prints the page's address (and the port used, when ``port`` was taken). Call
+    :meth:`TrainingView.finish` after training, then :meth:`TrainingView.serve`.
+    """
+    viewer = start_viewer(host, port, label=f"pointfield: {Path(out).name}")
+    note = f" ({viewer.port_note})" if viewer.port_note else ""
+    print(f"watch training at {viewer.url}{note}", flush=True)
+    return TrainingView(viewer, out).__enter__()

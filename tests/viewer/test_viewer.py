@@ -1,0 +1,136 @@
+"""The viewer without a browser: what each PATH is, the command's errors and ports, decimation,
+recentring, the browser's camera, and the quick preview of a large LAZ file."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from pointfield.cli import main
+from pointfield.errors import PointfieldError
+from pointfield.viewer.clouds import decimate, laz_preview
+from pointfield.viewer.fields import camera_of
+from pointfield.viewer.server import start_viewer, wxyz_of
+from pointfield.viewer.sources import kind_of
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_each_path_is_known_by_its_kind(cloud_file, splat_file, scene_folder, tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"task": "splat"}))
+    assert [kind_of(p) for p in (cloud_file, splat_file, scene_folder, run)] == ["cloud", "splats", "scene", "run"]
+
+
+def test_a_classifier_run_has_nothing_to_view(tmp_path):
+    (tmp_path / "config.json").write_text(json.dumps({"task": "classify"}))
+    with pytest.raises(PointfieldError, match="nothing to show in 3D"):
+        kind_of(tmp_path)
+
+
+def test_a_bad_path_is_the_one_line_error_of_every_command(capsys):
+    assert main(["view", "no-such-scan.laz"]) == 1
+    assert capsys.readouterr().err == "pointfield: error: no-such-scan.laz: no such file or directory\n"
+
+
+def test_a_taken_port_gets_the_next_free_one_and_says_so():
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        viewer = start_viewer(port=port)
+        try:
+            assert viewer.port != port
+            assert viewer.port_note == f"port {port} was taken; using {viewer.port}"
+            assert viewer.url == f"http://127.0.0.1:{viewer.port}"
+        finally:
+            viewer.close()
+
+
+def test_decimation_keeps_about_the_budget_in_file_order():
+    kept = decimate(1_000_000, 100_000)
+    assert abs(len(kept) - 100_000) < 2_000
+    assert np.all(np.diff(kept) > 0)
+    assert decimate(1_000, 100_000) is None
+
+
+def test_the_page_says_how_many_points_it_shows_and_reports_real_coordinates(served, cloud_file):
+    viewer, [view] = served([cloud_file], max_points=5_000)
+    shown = int(view.status.content.split()[1].replace(",", ""))
+    assert 4_500 < shown < 5_500
+    assert f"showing {shown:,} of 20,000 points" in view.status.content
+    assert "x 500,000" in view.status.content  # the bounds in the file's own coordinates
+    assert viewer.origin.tolist() == [500_010.0, 4_200_010.0, 100.0]
+    # A click's ray through a shown point reports that point in real coordinates.
+    target = view.display[123].astype(np.float64)
+    event = SimpleNamespace(ray_origin=target + [0, 0, 0.05], ray_direction=(0.0, 0.0, -1.0))
+    view._picked(event)
+    x, y, _ = view.shown.points[123]
+    assert f"x {x:,.3f}, y {y:,.3f}" in view.clicked.content
+
+
+def test_the_browser_camera_becomes_an_opencv_camera_looking_where_it_looks():
+    # A viser camera at (0, -5, 0) looking at the origin with +z up: OpenCV axes x right, y down, z forward.
+    rotation = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # columns: the camera's x, y, z in the world
+    browser = SimpleNamespace(wxyz=wxyz_of(rotation), position=np.array([0.0, -5.0, 0.0]), fov=math.radians(60),
+                              image_width=400, image_height=200)
+    cameras = camera_of(browser, longest_side=256)
+    assert (int(cameras.width[0]), int(cameras.height[0])) == (256, 128)
+    pixels, depth = cameras.project(torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64))
+    assert pixels[0, 0].tolist() == pytest.approx([128, 64])
+    assert depth[0, 0].item() == pytest.approx(5.0)
+    assert pixels[0, 1, 1].item() < 64  # world up is image up
+    assert float(cameras.fy[0]) == pytest.approx(64 / math.tan(math.radians(30)))
+
+
+def test_a_large_laz_file_is_previewed_from_the_first_points_of_each_chunk(shared_data):
+    path = shared_data / "las" / "autzen_trim.laz"
+    preview, total = laz_preview(path, 20_000)
+    assert total == 110_000
+    assert 20_000 <= len(preview.points) < 25_000
+    assert preview.points[:, 0].min() > 636_000 and preview.points[:, 0].max() < 637_200
+    assert {"intensity", "classification"} <= set(preview.fields)
+
+
+def test_pointfield_view_prints_its_url_moves_off_a_taken_port_and_stops_on_ctrl_c(cloud_file):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        command = [sys.executable, "-m", "pointfield", "view", str(cloud_file), "--port", str(port)]
+        env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        try:
+            first = process.stdout.readline()
+            assert first.startswith("pointfield view: open http://127.0.0.1:")
+            assert f"(port {port} was taken; using" in first
+            process.send_signal(signal.SIGINT)
+            out, err = process.communicate(timeout=60)
+        finally:
+            process.kill()
+    assert process.returncode == 0, err
+    assert out.strip().endswith("pointfield view: stopped")
+
+
+def test_a_cloud_is_coloured_by_any_of_its_fields(served, cloud_file):
+    viewer, [view] = served([cloud_file])
+    assert list(view.colour_by.options) == ["rgb", "height", "intensity"]
+    assert view.colour_by.value == "rgb"
+    node = viewer.server.scene.get_handle_by_name("/bumps/points")
+    as_rgb = np.array(node.colors)
+    view.colour_by.value = "intensity"
+    assert not np.array_equal(np.array(node.colors), as_rgb)
+    view.point_size.value = view.point_size.max
+    assert node.point_size == view.point_size.max
