@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-streaming clean
+.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-streaming bench-viewer clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,13 +18,20 @@ $(BIN)/.installed: pyproject.toml
 demo: $(BIN)/.installed
 	$(BIN)/pointfield demo --out demo-output
 
-test: $(BIN)/.installed
+test: $(BIN)/.installed $(BIN)/.chromium
 	$(BIN)/python -m pytest -q
 
 # open3d's wheel links libusb; Debian machines without it get it from apt.
 $(BIN)/.open3d: $(BIN)/.installed
 	$(BIN)/python -c "import open3d" 2>/dev/null || (apt-get install -y -qq libusb-1.0-0 >/dev/null)
 	$(BIN)/python -c "import open3d"
+	touch $@
+
+# The viewer's browser tests (and bench-viewer) drive Debian's chromium through playwright; playwright
+# never downloads a browser. Where apt cannot install it (not root, not Debian) those tests skip, saying why.
+$(BIN)/.chromium: $(BIN)/.installed
+	command -v chromium >/dev/null || (apt-get update -qq && apt-get install -y -qq chromium >/dev/null) \
+		|| echo "chromium could not be installed: the viewer's browser tests will skip"
 	touch $@
 
 # The SfM benchmark's peer: the COLMAP command line that nerfstudio's ns-process-data runs (Debian's package).
@@ -35,7 +42,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-ptx bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-streaming
+bench: bench-formats bench-fuzz bench-ptx bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-streaming bench-viewer
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -83,6 +90,9 @@ bench-streaming: $(BIN)/.open3d
 bench-sfm: $(BIN)/.colmap
 	$(BIN)/python benchmarks/bench_sfm.py
 	$(BIN)/python benchmarks/bench_sfm.py --training
+
+bench-viewer: $(BIN)/.chromium
+	$(BIN)/python benchmarks/bench_viewer.py
 
 # TinyNeRF, the hash-grid field and splats on lego in one run (about 45 minutes on 2 cores).
 bench-lego: $(BIN)/.installed

@@ -4,6 +4,7 @@ The functions most people need first::
 
     import pointfield
     cloud = pointfield.read("scan.pcd")          # any supported format
+    for chunk in pointfield.read_chunks("city.laz", points=1_000_000): ...  # bigger than memory
     pointfield.write("scan.ply", cloud)          # fields preserved, written atomically
     run = pointfield.load_run("runs/lego-ngp")   # any trained run: .render(cameras), .evaluate(), ...
     pointfield.classify.train(out="runs/shapes") # pointfield.classify / .segment: train, evaluate, predict
@@ -13,6 +14,7 @@ from typing import Any
 
 from pointfield.clouds import Mesh, PointCloud, Records, read, write  # noqa: E402
 from pointfield.errors import FormatError, PointfieldError  # noqa: E402
+from pointfield.streaming import read_chunks
 from pointfield.version import __version__  # noqa: E402
 
 # The learning half needs torch; it is imported on first use so that reading a cloud stays quick.
@@ -37,6 +39,7 @@ __all__ = [
     "classify",
     "load_run",
     "read",
+    "read_chunks",
     "segment",
     "write",
 ]

@@ -7,6 +7,9 @@ Each subcommand is a thin layer over a Python function:
 ``pointfield cloud convert``   :func:`pointfield.read` then :func:`pointfield.write`
 ``pointfield cloud render``    :func:`pointfield.viz.render_file`
 =============================  ===================================================
+
+The streaming verbs (downsample, crop, tile, merge, ``info --stats``, and ``convert`` of a
+folder or with a scale option) are in :mod:`pointfield.cli.cloud_streaming`.
 """
 
 from __future__ import annotations
@@ -19,11 +22,12 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from pointfield.cli import cloud_streaming
 from pointfield.errors import PointfieldError
 
 COLUMNS_HELP = (
-    "float32 values per point of a raw .bin scan: 4 (KITTI x y z intensity, the default), "
-    "5 (nuScenes), 6 (ScanNet x y z r g b), ..."
+    "float32 values per point of a raw .bin scan: 4 (KITTI x y z intensity), 5 (nuScenes), "
+    "6 (ScanNet x y z r g b), ... (default: 4 or 5, as the file's size, values and name say)"
 )
 
 
@@ -33,7 +37,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "cloud",
         help="inspect, convert and render point-cloud files",
         description="Inspect, convert and render point-cloud and mesh files in any supported "
-        "format (PLY, PCD, XYZ/TXT/PTS, NPY/NPZ, OFF, LAS/LAZ, velodyne .bin, E57).",
+        "format (PLY, PCD, XYZ/TXT/PTS, PTX, NPY/NPZ, OFF, LAS/LAZ, velodyne .bin, E57).",
     )
     commands = group.add_subparsers(dest="command", metavar="SUBCOMMAND", required=True)
 
@@ -46,6 +50,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     info.add_argument("file", type=Path, help="a point-cloud or mesh file")
     info.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     info.add_argument("--columns", type=int, metavar="N", help=COLUMNS_HELP)
+    info.add_argument(
+        "--stats",
+        action="store_true",
+        help="bounds, counts per class and field ranges, computed in one streaming pass",
+    )
+    cloud_streaming.add_scale_options(info, outputs=False)
     info.set_defaults(run=run_info)
 
     convert = commands.add_parser(
@@ -54,8 +64,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description="Read IN and write OUT in the format its suffix names, keeping every field "
         "the output format can hold (those it cannot are named in a warning).",
     )
-    convert.add_argument("source", type=Path, metavar="IN", help="file to read")
-    convert.add_argument("destination", type=Path, metavar="OUT", help="file to write")
+    convert.add_argument("source", type=Path, metavar="IN", help="file (or folder of files) to read")
+    convert.add_argument("destination", type=Path, metavar="OUT", help="file (or folder) to write")
     encoding = convert.add_mutually_exclusive_group()
     for word in ("ascii", "binary", "compressed"):
         encoding.add_argument(
@@ -71,6 +81,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="a format's own encoding name, e.g. binary_big_endian (default: the format's first)",
     )
     convert.add_argument("--columns", type=int, metavar="N", help=COLUMNS_HELP)
+    convert.add_argument(
+        "--to", metavar="SUFFIX", help="for a folder IN: the outputs' format, e.g. .laz (default: each input's)"
+    )
+    convert.add_argument(
+        "--pattern", metavar="GLOB", help="for a folder IN: which files, e.g. '*.bin' (default: every cloud suffix)"
+    )
+    cloud_streaming.add_scale_options(convert)
     convert.set_defaults(run=run_convert)
 
     render = commands.add_parser(
@@ -110,6 +127,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     render.add_argument("--columns", type=int, metavar="N", help=COLUMNS_HELP)
     render.set_defaults(run=run_render)
 
+    cloud_streaming.add_commands(commands)
+
 
 def read_options(path: Path, columns: int | None) -> dict[str, Any]:
     """Reader options from the command line, refused for formats whose reader has no such option."""
@@ -128,6 +147,9 @@ def read_options(path: Path, columns: int | None) -> dict[str, Any]:
 def run_info(args: argparse.Namespace) -> int:
     from pointfield.clouds.summary import describe, format_description
 
+    if args.stats:
+        return cloud_streaming.run_stats(args)
+
     info = describe(args.file, **read_options(args.file, args.columns))
     print(json.dumps(info, indent=2) if args.json else format_description(info))
     return 0
@@ -136,6 +158,9 @@ def run_info(args: argparse.Namespace) -> int:
 def run_convert(args: argparse.Namespace) -> int:
     import pointfield
     from pointfield.clouds.summary import describe
+
+    if args.source.is_dir() or cloud_streaming.wants_streaming(args):
+        return cloud_streaming.run_streaming_convert(args)
 
     cloud = pointfield.read(args.source, **read_options(args.source, args.columns))
     with warnings.catch_warnings(record=True) as caught:

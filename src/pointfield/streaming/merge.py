@@ -1,0 +1,205 @@
+"""``merge`` and ``convert``, streamed: many files into one, one file into another format, and a
+folder of scans into a folder in another format.
+
+``merge`` concatenates its inputs in the order given. The result has the fields every input
+has (others are dropped, with a warning), each in the dtype numpy promotes the inputs' dtypes
+to, and points in the promoted dtype of all inputs; metadata comes from the first input.
+:func:`merge_clouds` is the in-memory definition.
+
+``convert_folder`` converts every point-cloud file under a folder (recursively) into the
+same relative path under another folder, with a new suffix; it is one task per file on Dask,
+and outputs that exist are skipped (they are complete: every file is written atomically).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pointfield.clouds.cloud import PointCloud
+from pointfield.clouds.formats import formats
+from pointfield.errors import PointfieldError
+from pointfield.streaming import distributed
+from pointfield.streaming.chunks import ChunkSource, open_source
+from pointfield.streaming.jobs import (
+    bytes_per_point,
+    output_done,
+    progress_bar,
+    summary,
+    template_of,
+)
+from pointfield.streaming.memory import DEFAULT_MEMORY, plan
+from pointfield.streaming.select import keep_all, select_to_file
+
+
+def common_layout(templates: list[PointCloud]) -> tuple[np.dtype, dict[str, np.dtype], list[str]]:
+    """The points dtype, the fields (name -> dtype) of a merge, and the fields it drops."""
+    points = np.result_type(*[t.points.dtype for t in templates])
+    names = [n for n in templates[0].fields if all(n in t.fields for t in templates)]
+    dropped = sorted({n for t in templates for n in t.fields} - set(names))
+    fields = {}
+    for name in names:
+        shapes = {t.fields[name].shape[1:] for t in templates}
+        if len(shapes) > 1:
+            dropped.append(name)
+            continue
+        fields[name] = np.result_type(*[t.fields[name].dtype for t in templates])
+    return points, fields, dropped
+
+
+def conform(points_dtype: np.dtype, fields: dict[str, np.dtype], cloud: PointCloud, index: np.ndarray) -> PointCloud:
+    """The rule of ``merge``: ``cloud`` with the merge's fields and dtypes."""
+    return PointCloud(
+        cloud.points.astype(points_dtype, copy=False),
+        {name: cloud.fields[name].astype(dtype, copy=False) for name, dtype in fields.items()},
+        None,
+        cloud.metadata,
+    )
+
+
+def merge_clouds(clouds: list[PointCloud]) -> PointCloud:
+    """In memory, the merge of ``clouds`` (module docstring)."""
+    points, fields, _ = common_layout(clouds)
+    parts = [conform(points, fields, c, np.arange(len(c))) for c in clouds]
+    return PointCloud(
+        np.concatenate([p.points for p in parts]),
+        {n: np.concatenate([p.fields[n] for p in parts]) for n in fields},
+        None,
+        dict(clouds[0].metadata),
+    )
+
+
+def merge(
+    sources: list[str | os.PathLike[str]],
+    out: str | os.PathLike[str],
+    *,
+    encoding: str | None = None,
+    memory: str | int = DEFAULT_MEMORY,
+    points: int | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    client: Any = None,
+    scratch: str | os.PathLike[str] | None = None,
+    overwrite: bool = False,
+    progress: bool = False,
+    columns: int | None = None,
+    what: str = "merge",
+) -> dict[str, Any]:
+    """Concatenate ``sources`` into ``out``, chunk by chunk (module docstring).
+
+    Options as :func:`~pointfield.streaming.downsample`. Returns a summary.
+    """
+    if not sources:
+        raise PointfieldError("merge needs at least one input")
+    if output_done(out, overwrite):
+        return summary(sources=[str(s) for s in sources], out=out, skipped=True)
+    options = {"columns": columns} if columns is not None else {}
+    opened: list[tuple[ChunkSource, dict[str, Any]]] = [(open_source(s, **options), options) for s in sources]
+    templates = [template_of(src) for src, _ in opened]
+    points_dtype, fields, dropped = common_layout(templates)
+    if dropped:
+        warnings.warn(f"fields not in every input are left out of the merge: {', '.join(dropped)}", stacklevel=2)
+    rule = keep_all if len(opened) == 1 else partial(conform, points_dtype, fields)
+    budget = plan(memory, max(bytes_per_point(t) for t in templates), points)
+    with distributed.cluster(workers, scheduler, client) as dask_client:
+        written = select_to_file(opened, Path(out), rule, encoding, budget.chunk_points, dask_client,
+                                 scratch, progress, what)
+    return summary(sources=[str(s) for s in sources], out=out,
+                   input_points=sum(src.count for src, _ in opened), output_points=written, skipped=False)
+
+
+def convert(source: str | os.PathLike[str], out: str | os.PathLike[str], **options: Any) -> dict[str, Any]:
+    """Convert one file to the format of ``out``'s suffix, chunk by chunk, fields preserved.
+
+    Options as :func:`merge`.
+    """
+    return merge([source], out, what="convert", **options)
+
+
+def cloud_files(folder: Path, pattern: str | None = None) -> list[Path]:
+    """The files under ``folder`` (any depth) matching ``pattern`` (``"*.bin"``), else those
+    with a point-cloud suffix; sorted, hidden files left out."""
+    suffixes = {s for fmt in formats() for s in fmt.suffixes}
+    found = folder.rglob(pattern) if pattern else (p for p in folder.rglob("*") if p.suffix.lower() in suffixes)
+    return sorted(p for p in found if p.is_file() and not p.name.startswith("."))
+
+
+def convert_task(source: str, out: str, encoding: str | None, points: int, columns: int | None,
+                 overwrite: bool) -> dict[str, Any]:
+    """Convert one file (a task of :func:`convert_folder`); a bad file is reported, not raised."""
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return convert(source, out, encoding=encoding, points=points, columns=columns, overwrite=overwrite)
+    except PointfieldError as error:
+        return {"source": source, "error": str(error)}
+
+
+def convert_folder(
+    folder: str | os.PathLike[str],
+    outdir: str | os.PathLike[str],
+    suffix: str | None = None,
+    *,
+    pattern: str | None = None,
+    encoding: str | None = None,
+    memory: str | int = DEFAULT_MEMORY,
+    points: int | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    client: Any = None,
+    overwrite: bool = False,
+    progress: bool = False,
+    columns: int | None = None,
+) -> dict[str, Any]:
+    """Convert every point-cloud file under ``folder`` into ``outdir``, same relative paths.
+
+    ``suffix`` (``".laz"``) is the outputs' format; None keeps each file's own. ``pattern``
+    (``"*.bin"``) picks the inputs; by default every file with a point-cloud suffix. Outputs
+    that exist are skipped unless ``overwrite``. A file that cannot be read does not stop the
+    others: once they are done, a PointfieldError names every file that failed and why.
+    Returns how many files were converted and skipped.
+    """
+    folder, outdir = Path(folder), Path(outdir)
+    if not folder.is_dir():
+        raise PointfieldError(f"{folder}: not a folder")
+    suffix = suffix if suffix is None or suffix.startswith(".") else f".{suffix}"
+    inputs = cloud_files(folder, pattern)
+    jobs = []
+    skipped = 0
+    targets: dict[Path, Path] = {}
+    for path in inputs:
+        target = outdir / path.relative_to(folder)
+        target = target.with_suffix(suffix) if suffix else target
+        if target in targets:
+            raise PointfieldError(
+                f"{targets[target]} and {path} would both be written to {target}; choose the "
+                "inputs with a pattern (--pattern '*.bin')"
+            )
+        targets[target] = path
+        if target.exists() and not overwrite:
+            skipped += 1
+            continue
+        jobs.append((str(path), str(target), encoding, points or plan(memory, 64).chunk_points, columns, overwrite))
+    with distributed.cluster(workers, scheduler, client) as dask_client, \
+            progress_bar(len(jobs), f"convert {folder.name}", progress, "file") as bar:
+        if dask_client is None:
+            results = []
+            for job in jobs:
+                results.append(convert_task(*job))
+                bar.update(1)
+        else:
+            results = distributed.run_tasks(dask_client, convert_task, jobs, bar)
+    failed = [r for r in results if "error" in r]
+    if failed:
+        raise PointfieldError(
+            f"{len(failed)} of {len(jobs)} files could not be converted (the others were): "
+            + "; ".join(r["error"] for r in failed[:5]) + (" ..." if len(failed) > 5 else "")
+        )
+    return summary(source=folder, out=outdir, files=len(inputs), converted=len(jobs), skipped=skipped,
+                   points=sum(r.get("output_points", 0) for r in results))
