@@ -66,10 +66,15 @@ def data(tmp_path_factory) -> dict[str, Path]:
 @pytest.fixture(scope="module")
 def dask_client():
     """A real dask.distributed LocalCluster of 2 worker processes, 1 thread each, per module."""
+    import os
+
     from distributed import Client, LocalCluster
 
+    saved = dict(os.environ)  # the nannies write dask's pre-spawn-environ into this process too
     with (
         LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
         Client(cluster) as client,
     ):
+        os.environ.clear()
+        os.environ.update(saved)
         yield client

@@ -74,6 +74,8 @@ def cluster(
         return
     if workers < 1:
         raise ValueError(f"workers must be at least 1, got {workers}")
+    # The nanny writes pre-spawn-environ into this process's os.environ too: put it back after.
+    saved = {name: os.environ.get(name) for name in WORKER_ENVIRONMENT}
     with dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRONMENT}):
         local = LocalCluster(
             n_workers=workers,
@@ -84,6 +86,11 @@ def cluster(
             # the caller through the futures anyway.
             silence_logs=logging.CRITICAL,
         )
+    for name, value in saved.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
     try:
         with Client(local) as started:
             yield started
