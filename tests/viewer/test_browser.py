@@ -117,7 +117,8 @@ def test_training_is_watched_live_and_pauses_from_the_page(page_of, tmp_path):
             page.get_by_role("button", name="resume").click()
             training.join(120)
         assert not training.is_alive()
-        assert "step 60" in page.inner_text("body")
+        # The page gets the last step's text a moment after training ends: wait for it, not for a clock.
+        wait_for(lambda: "step 60" in page.inner_text("body") or None, 30, "the page to show step 60")
         assert shows_object(page) >= OBJECT_PIXELS
     finally:
         viewer.close()

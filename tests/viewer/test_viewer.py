@@ -111,7 +111,11 @@ def test_pointfield_view_prints_its_url_moves_off_a_taken_port_and_stops_on_ctrl
         port = taken.getsockname()[1]
         command = [sys.executable, "-m", "pointfield", "view", str(cloud_file), "--port", str(port)]
         env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
-        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        # SIGINT at its default: a child started while the test process ignores SIGINT (as some
+        # earlier test's library leaves it) would inherit the ignoring, and Python then installs
+        # no KeyboardInterrupt handler, so Ctrl-C could not be tested.
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                                   preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # noqa: PLW1509 (only a signal reset)
         try:
             first = process.stdout.readline()
             assert first.startswith("pointfield view: open http://127.0.0.1:")
