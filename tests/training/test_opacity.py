@@ -81,3 +81,18 @@ def test_the_alpha_loss_learns_the_opacity_that_colour_cannot_show(white_cube, t
                         seed=0, progress=False)
         errors[weight] = metrics["opacity_error"]
     assert errors[DEFAULT_ALPHA_LOSS] < 0.5 * errors[0.0], errors
+
+
+def test_the_alpha_loss_leaves_the_reported_training_psnr_that_of_the_colour(white_cube, tmp_path):
+    """One step from the same start: the colour error, hence train_psnr, is the same with or without the alpha term."""
+    import json
+
+    from pointfield.fields.train import train
+
+    first_psnr = {}
+    for weight in (0.0, 1.0):
+        out = tmp_path / str(weight)
+        train(str(white_cube), model="tiny", out=out, steps=1, eval_every=1, device="cpu", alpha_loss=weight,
+              random_background=False, model_options={"samples": 8}, seed=0, progress=False)
+        first_psnr[weight] = json.loads((out / "metrics.jsonl").read_text().splitlines()[0])["train_psnr"]
+    assert first_psnr[1.0] == first_psnr[0.0]

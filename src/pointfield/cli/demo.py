@@ -70,9 +70,6 @@ SCENE_SETTINGS = SceneSettings(
 SCENE_QUICK_SETTINGS = SceneSettings(
     scene="cube", views=12, size=16, ngp_steps=6, splat_steps=6, frames=3, resolution=24, points=500
 )
-SCENE_DATA = "scene-cube"
-NGP_RUN = "ngp-cube"
-SPLAT_RUN = "splats-cube"
 TURNTABLE = "turntable.gif"
 
 
@@ -124,7 +121,6 @@ class SceneDemo:
     mesh: Path  # exported from the ngp field
     cloud: Path
     pictures: list[Path]  # of the mesh and the cloud
-    seconds: float
 
 
 @dataclass
@@ -204,10 +200,11 @@ def reconstruct_scene(
 ) -> SceneDemo:
     """Make a synthetic scene, train the hash-grid field and splats on it, export the field's geometry.
 
-    Into ``out_dir``: the scene (``scene-cube/``, as ``scene make`` writes it), the two runs
-    (``ngp-cube/``, ``splats-cube/``, each with a turntable of colour | depth | opacity), and the
-    field's mesh and cloud (``cube-mesh.ply``, ``cube-cloud.ply``) with a picture of each. Runs
-    a previous demo left are replaced; a run folder holding anything else is refused.
+    Into ``out_dir``, for scene ``cube``: the scene (``scene-cube/``, as ``scene make`` writes it),
+    the two runs (``ngp-cube/``, ``splats-cube/``, each with a turntable of colour | depth |
+    opacity), and the field's mesh and cloud (``cube-mesh.ply``, ``cube-cloud.ply``) with a
+    picture of each. Runs a previous demo left are replaced; a run folder holding anything else
+    is refused.
     """
     # torch is imported only when this part runs, so other commands start fast (see cli/).
     from pointfield.fields.train import train as train_field
@@ -217,11 +214,11 @@ def reconstruct_scene(
     from pointfield.splats.train import train as train_splats
     from pointfield.viz.render import render_file
 
-    runs = {"ngp": out_dir / NGP_RUN, "splats": out_dir / SPLAT_RUN}
+    name = settings.scene
+    runs = {"ngp": out_dir / f"ngp-{name}", "splats": out_dir / f"splats-{name}"}
     for run_dir in runs.values():
         _clear_previous_run(run_dir)
-    start = time.perf_counter()
-    data = make_scene(settings.scene, out_dir / SCENE_DATA, views=settings.views, size=settings.size, overwrite=True)
+    data = make_scene(name, out_dir / f"scene-{name}", views=settings.views, size=settings.size, overwrite=True)
     print_fn(f"\nscene:   the synthetic {settings.scene}, {settings.views} views of {settings.size} x "
              f"{settings.size} pixels with depth and alpha ({data})")
     trainers = {
@@ -231,21 +228,21 @@ def reconstruct_scene(
     described = {"ngp": "the hash-grid field (Instant-NGP)", "splats": "Gaussian splats"}
     metrics, turntables = {}, {}
     for model, run_dir in runs.items():
-        print_fn(f"{model}:{' ' * (8 - len(model))}training {described[model]}")
+        label = f"{model}:".ljust(9)
+        print_fn(f"{label}training {described[model]}")
         began = time.perf_counter()
         metrics[model] = trainers[model](run_dir)
         turntables[model] = Path(load_run(run_dir).render_path("orbit", frames=settings.frames,
                                                                out=run_dir / TURNTABLE)["out"])
-        print_fn(f"{model}:{' ' * (8 - len(model))}held-out PSNR {metrics[model]['psnr']:.2f} dB, SSIM "
+        print_fn(f"{label}held-out PSNR {metrics[model]['psnr']:.2f} dB, SSIM "
                  f"{metrics[model]['ssim']:.3f} on {metrics[model]['views']} views "
                  f"({metrics[model]['steps']} steps, {time.perf_counter() - began:.0f} s with the turntable)")
-    mesh, cloud = out_dir / "cube-mesh.ply", out_dir / "cube-cloud.ply"
+    mesh, cloud = out_dir / f"{name}-mesh.ply", out_dir / f"{name}-cloud.ply"
     export_mesh(runs["ngp"], mesh, resolution=settings.resolution, progress=progress)
     export_cloud(runs["ngp"], cloud, points=settings.points, progress=progress)
     pictures = [render_file(path, path.with_suffix(".png"), width=480, height=360, up="z") for path in (mesh, cloud)]
-    seconds = time.perf_counter() - start
     print_fn(f"geometry: mesh {mesh} and cloud {cloud} from the ngp field (pictures beside them)")
-    return SceneDemo(data, runs, metrics, turntables, mesh, cloud, pictures, seconds)
+    return SceneDemo(data, runs, metrics, turntables, mesh, cloud, pictures)
 
 
 def next_steps(out_dir: Path, scene: SceneDemo | None) -> str:

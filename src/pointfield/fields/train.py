@@ -146,10 +146,9 @@ class NerfTask(Task):
         self.alpha_loss = alpha_loss_weight(config.get("alpha_loss"), self.scene, self.train_frames, default=0.0)
         self.random_background = uses_random_background(config.get("random_background"), self.scene,
                                                         self.train_frames)
-        self.transparency = None
-        if self.alpha_loss or self.random_background:
-            self.transparency = transparency_of(self.scene, self.train_frames)
-            self.transparency = None if self.transparency is None else self.transparency.to(device)
+        # 1 - alpha of every training ray; both are off (0 / False) where the images have no alpha.
+        self.transparency = (transparency_of(self.scene, self.train_frames).to(device)
+                             if self.alpha_loss or self.random_background else None)
         self.near, self.far = depth_bounds(self.scene)
         self.steps_per_epoch = math.ceil(len(self.rays) / config["batch_rays"])
         self.round_steps = config["eval_every"] or min(self.steps_per_epoch, 500)
@@ -200,16 +199,16 @@ class NerfTask(Task):
         self.model.before_step(int(step), generator)
         indices = self._rays_of_step(int(step), generator)
         background, target = self.background, self.colors[indices]
-        if self.random_background and self.transparency is not None:
+        if self.random_background:
             # A random colour behind each ray: opacity must match alpha (training/opacity.py).
             background = torch.rand(len(indices), 3, generator=generator).to(self.device)
             target = recomposite(target, self.transparency[indices], self.background, background)
         output = self.model(self.rays[indices], background, jitter=True)
         losses = [torch.mean((rendered.color - target) ** 2) for rendered in output.passes]
-        if self.alpha_loss and self.transparency is not None:
+        stats = {"psnr": psnr_from_mse(float(losses[-1].detach()))}  # of the final pass's colour
+        if self.alpha_loss:
             alpha = 1 - self.transparency[indices]
             losses.append(self.alpha_loss * (output.passes[-1].opacity - alpha).abs().mean())
-        stats = {"psnr": psnr_from_mse(float(losses[-1].detach()))}
         if self.budget is not None:
             self.budget.update(len(indices), output.samples)
             stats.update(rays=float(len(indices)), samples_per_ray=output.samples / max(len(indices), 1))

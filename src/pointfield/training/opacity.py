@@ -14,14 +14,9 @@ half-transparent), and faint haze in empty space costs little. Two cures:
 - **the alpha loss** (splats, by default, weight :data:`DEFAULT_ALPHA_LOSS`; fields when asked):
   ``weight * mean |rendered opacity - a|`` over the step's rays or pixels added to the loss.
 
-Measured (docs/geometry.md): on lego at 600 steps the hash-grid field kept its PSNR with the
-alpha loss (31.54 against 31.52 dB with neither, opacity error 0.0038 against 0.0173) where
-random backgrounds cost about 0.4 dB; but on the synthetic cube, whose field starts opaque and
-white against a white background, the alpha loss alone left it at 20 dB after 300 steps where
-random backgrounds reached 39 dB. Random backgrounds are the fields' default for that. Splats
-start transparent-ish and small: the alpha loss costs them nothing (lego 31.02 against 30.94
-dB) where a random background per image cost 0.7 dB on the cube. Evaluation and rendering keep
-the scene's background. Photos without alpha train on colour alone.
+Why random backgrounds for fields and the alpha loss for splats, with the figures and the
+commands that measured them: docs/geometry.md, "Opacity, not only colour". Evaluation and
+rendering keep the scene's background. Photos without alpha train on colour alone.
 """
 
 from __future__ import annotations
