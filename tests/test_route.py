@@ -104,6 +104,15 @@ def test_the_laz_header_gives_bounds_and_dimensions(shared_data):
     assert "classification" in details["fields"]
 
 
+def test_an_npz_is_described_from_its_headers_with_the_points_the_reader_takes(tmp_path):
+    path = tmp_path / "two.npz"
+    np.savez(path, pos=np.zeros((5, 3)), points=np.ones((7, 3)), label=np.arange(7))  # "points" comes first
+    details = inspect_path(path).details
+    with pytest.warns(UserWarning, match="'pos'"):  # not one value per point of "points"
+        assert details["points"] == len(pointfield.read(path)) == 7
+    assert details["read"] == "header" and details["fields"] == ["pos", "label"]
+
+
 @pytest.mark.parametrize(("name", "scene_format", "frames", "listed", "obj"), [
     ("nerf/lego_blender", "blender", 100, 100, True),
     ("nerf/fox_instant_ngp", "nerfstudio", 50, 67, False),

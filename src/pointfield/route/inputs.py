@@ -14,8 +14,9 @@ kind        what                                                             fou
 ==========  ===============================================================  ==========================
 
 Files with a header (PLY, PCD, LAS / LAZ, E57, NPY, NPZ) are described from it alone, and a
-``.bin`` scan from its size, so a 100-million-point file costs what its first kilobytes cost.
-Headerless text formats (XYZ / PTS / TXT, OFF) are read whole only up to
+``.bin`` scan from its size and a sample of its values (KITTI's 4 columns or nuScenes' 5), so a
+100-million-point file costs what its first kilobytes cost.
+Text formats (XYZ / PTS / TXT, PTX, OFF) are read whole only up to
 :data:`FULL_READ_LIMIT`; beyond it their points are estimated from the first lines.
 ``details["read"]`` says which was done: ``"header"``, ``"size"``, ``"whole file"`` or
 ``"estimate"``.
@@ -45,14 +46,20 @@ from pointfield.clouds.formats.e57.library import load_pye57
 from pointfield.clouds.formats.las.layout import check_layout
 from pointfield.clouds.formats.las.library import library_errors as las_errors
 from pointfield.clouds.formats.npy import POINT_KEYS, read_array_header
+from pointfield.clouds.formats.npz import (
+    METADATA_KEY,
+    points_members,
+    read_member_headers,
+)
 from pointfield.clouds.formats.pcd import header as pcd_header
 from pointfield.clouds.formats.ply import header as ply_header
+from pointfield.clouds.formats.velodyne import LAYOUT_NAMES, guess_columns
 from pointfield.clouds.mesh import Mesh
 from pointfield.errors import FormatError, PointfieldError
 from pointfield.runs import RUN_CLASSES
 from pointfield.scenes.formats import detect_scene_format, read_scene
 from pointfield.scenes.tools import describe_scene
-from pointfield.training.run import read_json
+from pointfield.training.run import RunDirectory, read_json
 
 KINDS = ("cloud", "mesh", "splats", "clouds", "photos", "video", "scene", "run")
 
@@ -60,7 +67,7 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".mts")
 
 FULL_READ_LIMIT = 64 << 20
-"""Headerless files (XYZ / PTS / TXT, OFF) up to this many bytes are read whole to describe them."""
+"""Text files (XYZ / PTS / TXT, PTX, OFF) up to this many bytes are read whole to describe them."""
 
 ESTIMATE_BYTES = 1 << 20
 """Bytes of a larger headerless file whose lines estimate its number of points."""
@@ -237,24 +244,15 @@ def _npy(path: Path) -> dict[str, Any]:
 
 
 def _npz(path: Path) -> dict[str, Any]:
-    try:
-        with zipfile.ZipFile(path) as archive:
-            shapes = {}
-            for info in archive.infolist():
-                if info.filename.endswith(".npy"):
-                    with archive.open(info) as member:
-                        name = info.filename.removesuffix(".npy")
-                        shapes[name] = read_array_header(member, path, name).shape
-    except (zipfile.BadZipFile, OSError) as error:
-        raise FormatError(path, f"not a readable .npz (zip) archive: {error}") from None
-    key = next((name for name in shapes if name.lower() in POINT_KEYS), None)
-    if key is None and {"x", "y", "z"} <= set(shapes):
-        key = "x"
-    if key is None:
-        raise FormatError(path, f"an archive of {', '.join(sorted(shapes)) or 'no arrays'}: no points "
+    headers = read_member_headers(path)
+    found = points_members(headers)  # the points member, or the x, y and z members
+    if not found:
+        raise FormatError(path, f"an archive of {', '.join(sorted(headers)) or 'no arrays'}: no points "
                                 f"(a member named {' / '.join(POINT_KEYS)}, or x, y, z), and not a scene "
                                 f"(images, poses, focal)")
-    return {**_array_details(shapes[key], [name for name in shapes if name != key]), "encoding": None}
+    points = found if len(found) == 1 else ()  # x, y and z members are listed among the fields
+    fields = [name for name in headers if name not in (*points, METADATA_KEY)]
+    return {**_array_details(headers[found[0]].shape, fields), "encoding": None}
 
 
 def _array_details(shape: tuple[int, ...], names: Sequence[str]) -> dict[str, Any]:
@@ -263,8 +261,6 @@ def _array_details(shape: tuple[int, ...], names: Sequence[str]) -> dict[str, An
 
 
 def _velodyne(path: Path) -> dict[str, Any]:
-    from pointfield.clouds.formats.velodyne import guess_columns
-
     columns = guess_columns(path)  # from the size, a sample of the values and the name; FormatError if neither
     return {"kind": "cloud", "encoding": "float32", "points": path.stat().st_size // (4 * columns), "faces": 0,
             "organised": None, "fields": VELODYNE_FIELDS[columns], "columns": columns, "read": "size"}
@@ -298,11 +294,11 @@ _HEADER_READERS = {"ply": _ply, "pcd": _pcd, "las": _las, "e57": _e57, "npy": _n
 
 
 def _folder(path: Path) -> Input:
-    config = path / "config.json"
-    if config.is_file():
-        settings = read_json(config)
+    run = RunDirectory(path)
+    if run.exists():
+        settings = run.read_config()
         if isinstance(settings, dict) and "task" in settings:
-            return _run(path, settings)
+            return _run(run, settings)
     try:
         detect_scene_format(path)
     except FormatError:
@@ -392,13 +388,12 @@ def _has_alpha(scene) -> bool:
         return image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info
 
 
-def _run(path: Path, config: dict[str, Any]) -> Input:
-    task = config["task"]
+def _run(run: RunDirectory, config: dict[str, Any]) -> Input:
+    path, task = run.path, config["task"]
     known = [name for run_class in RUN_CLASSES for name in run_class.tasks]
     if task not in known:
         raise PointfieldError(f"{path}: a run of task {task!r}, which pointfield does not open ({', '.join(known)})")
-    final = path / "metrics.json"
-    metrics = read_json(final) if final.is_file() else {}
+    metrics = read_json(run.final_metrics) if run.final_metrics.is_file() else {}
     details: dict[str, Any] = {
         "path": str(path), "task": task, "model": config.get("model", "splats" if task == "splat" else task),
         "finished": bool(metrics), "scene": config.get("scene"), "data": config.get("data"),
@@ -455,8 +450,7 @@ def _format_text(details: dict[str, Any]) -> str:
     if name == "text":
         return Path(details["path"]).suffix[1:].upper()
     if name == "velodyne":
-        return ("raw float32 .bin (nuScenes' x y z intensity ring)" if details.get("columns") == 5
-                else "raw float32 .bin (KITTI's x y z intensity)")
+        return f"raw float32 .bin ({LAYOUT_NAMES[details['columns']]})"
     if name == "e57":
         return f"E57, {details['scans']} scan{'s' if details['scans'] != 1 else ''}"
     return name.upper() + (f" {encoding}" if encoding and name in ("ply", "pcd") else "")

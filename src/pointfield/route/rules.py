@@ -19,6 +19,7 @@ from typing import Any
 
 from pointfield.errors import PointfieldError
 from pointfield.route.inputs import Input, inspect_path
+from pointfield.viewer.clouds import DEFAULT_MAX_POINTS
 
 POINT_CLOUD = "point cloud"
 MESH = "mesh"
@@ -69,9 +70,6 @@ MESH_FACES = 200_000
 
 VOXEL = 0.05
 """Voxel side of a collision map, in the file's units (5 cm for lidar and LAS, which are metres)."""
-
-VIEWER_POINTS = 2_000_000
-"""The most points ``pointfield view`` shows of a cloud by default (it decimates past them)."""
 
 LABEL_FIELDS = ("label", "labels", "classification", "class", "semantic", "scalar_label")
 """Per-point fields that hold segmentation labels, as scans name them (LAS: classification)."""
@@ -206,8 +204,8 @@ def _cloud(given: Input, task: str | None) -> Plan:
                     "(a radiance field or splats), not the scan",
                     [_pf("cloud", "render", source, "--out", f"{name}.png"), _pf("view", source)])
     notes = []
-    if isinstance(details.get("points"), int) and details["points"] > VIEWER_POINTS:
-        notes.append(f"{_points_text(details)}: view shows a subset of {VIEWER_POINTS:,} (--max-points to change)")
+    if isinstance(details.get("points"), int) and details["points"] > DEFAULT_MAX_POINTS:
+        notes.append(f"{_points_text(details)}: view shows a subset of {DEFAULT_MAX_POINTS:,} (--max-points to change)")
     reasons = {
         "realtime": "Points draw at interactive rates directly: nothing to train, nothing to convert",
         "reconstruct": "A scan is already a 3D reconstruction, explicit and metric; radiance fields and splats are "

@@ -170,17 +170,13 @@ def test_cloud_info_reads_a_comma_separated_pcd(pdal_pcd, tmp_path, capsys):
 # A cloud without x y z (Records) written to LAS
 
 
-def test_records_written_to_las_are_the_npz_writers_clear_error(tmp_path):
+@pytest.mark.parametrize("suffix", [".las", ".npz", ".xyz", ".bin"])
+def test_records_written_to_a_format_without_them_name_the_formats_that_hold_them(tmp_path, suffix):
     records = Records({"descriptor": np.zeros((3, 8), np.float32)})
-    with pytest.raises(FormatError) as las_error:
-        pointfield.write(tmp_path / "records.las", records)
-    with pytest.raises(FormatError) as npz_error:
-        pointfield.write(tmp_path / "records.npz", records)
-    assert "needs points; write records without x/y/z as .npy" in str(las_error.value)
-    assert str(las_error.value).split(": ", 1)[1].replace(".las", ".npz") == str(
-        npz_error.value
-    ).split(": ", 1)[1]
-    assert not (tmp_path / "records.las").exists()
+    with pytest.raises(FormatError) as error:
+        pointfield.write(tmp_path / f"records{suffix}", records)
+    assert f"{suffix} needs points; write records without x/y/z as .npy, .pcd or .ply" in str(error.value)
+    assert not (tmp_path / f"records{suffix}").exists()
 
 
 def test_converting_a_descriptor_pcd_to_las_is_one_line(tmp_path, capsys):
@@ -273,6 +269,29 @@ def test_64_bit_integers_a_double_cannot_hold_are_refused(tmp_path):
     cloud = PointCloud(np.zeros((2, 3)), {"id": np.array([0, 2**53 + 1], np.uint64)})
     with pytest.raises(FormatError, match="2\\*\\*53"):
         pointfield.write(tmp_path / "huge.ply", cloud)
+
+
+def _polygons(*faces):
+    array = np.empty(len(faces), object)
+    array[:] = [np.array(face, np.int64) for face in faces]
+    return array
+
+
+@pytest.mark.parametrize(
+    "faces",
+    [np.array([[0, 1, 2], [0, 2, 3]], np.int64), np.array([[0, 1, 2]], np.uint64),
+     _polygons([0, 1, 2], [0, 1, 2, 3])],
+    ids=["int64 triangles", "uint64 triangles", "int64 polygons"],
+)
+def test_64_bit_face_indices_are_written_as_int_without_a_warning(tmp_path, faces):
+    mesh = pointfield.Mesh(np.random.default_rng(0).normal(size=(4, 3)), faces=faces)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pointfield.write(tmp_path / "mesh.ply", mesh)
+    back = read_quietly(tmp_path / "mesh.ply").faces
+    for read, written in zip(back, faces, strict=True):
+        assert read.dtype == np.int32
+        np.testing.assert_array_equal(read, written)
 
 
 def test_cloud_convert_prints_the_narrowing_warning(tmp_path, capsys):

@@ -14,7 +14,7 @@ import pytest
 import pointfield
 from pointfield import FormatError, PointCloud
 from pointfield.cli import main
-from pointfield.clouds.formats import format_of
+from pointfield.clouds.formats import format_of, ptx
 from pointfield.clouds.formats.ptx import looks_like_ptx
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
@@ -204,11 +204,17 @@ def test_las_colours_are_written_as_0_to_255(tmp_path):
     )
 
 
-def test_the_write_is_atomic_a_refused_cloud_leaves_the_old_file(tmp_path):
+def test_the_write_is_atomic_a_write_failing_midway_leaves_the_old_file(tmp_path, monkeypatch):
     path = ptx_file(tmp_path, two_scan_ptx())
-    with pytest.raises(FormatError):
-        pointfield.write(path, pointfield.Records({"d": np.zeros((2, 4))}))
+
+    def fail(file, *args, **kwargs):  # after the scan header is written
+        raise FormatError(file.name, "the disk is full")
+
+    monkeypatch.setattr(ptx, "write_rows", fail)
+    with pytest.raises(FormatError, match="the disk is full"):
+        pointfield.write(path, PointCloud(np.ones((2, 3)), {"intensity": np.ones(2)}))
     assert path.read_text() == two_scan_ptx()
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]
 
 
 # ---------------------------------------------------------------------------------------------

@@ -83,14 +83,14 @@ def scan(n=64, **fields):
 
 
 LAYOUTS = {
-    4: dict(intensity=lambda rng, n: rng.random(n, np.float32)),
-    5: dict(
-        intensity=lambda rng, n: rng.random(n, np.float32),
-        ring=lambda rng, n: rng.integers(0, 32, n).astype(np.float32),
-    ),
-    6: dict(colors=lambda rng, n: rng.integers(0, 256, (n, 3)).astype(np.float32)),
-    9: dict(features=lambda rng, n: rng.random((n, 6), np.float32)),
-    3: dict(),
+    4: {"intensity": lambda rng, n: rng.random(n, np.float32)},
+    5: {
+        "intensity": lambda rng, n: rng.random(n, np.float32),
+        "ring": lambda rng, n: rng.integers(0, 32, n).astype(np.float32),
+    },
+    6: {"colors": lambda rng, n: rng.integers(0, 256, (n, 3)).astype(np.float32)},
+    9: {"features": lambda rng, n: rng.random((n, 6), np.float32)},
+    3: {},
 }
 
 

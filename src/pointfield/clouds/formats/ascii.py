@@ -7,9 +7,10 @@ There are two ways in, a fast one and a general one, and a format tries them in 
   pyarrow's CSV reader (one thread: see read_table), several times faster than numpy (the
   README's dependency note). Integers stay exact, since each column is parsed as its own type.
   Anything else it refuses with a :class:`TableError` saying what it found.
-- :func:`parse_numbers` and :func:`numbers_by_line` read every whitespace-separated number as
-  float64 with numpy's tokenizer, whatever the spacing, and name the line of the first value that
-  is not a number. :func:`single_spaced` rewrites irregular spacing so that text the fast way
+- :func:`parse_numbers`, :func:`numbers_by_line` and :func:`rows_of_numbers` read every
+  whitespace-separated number as float64 with numpy's tokenizer, whatever the spacing, and name
+  the line of the first value that is not a number (or, for rows, of the first row too short or
+  too long). :func:`single_spaced` rewrites irregular spacing so that text the fast way
   refused for its spacing alone can take the fast way after all, keeping the column types.
 
 :func:`skip_lines` finds where a declared number of lines ends (counting newlines in large
@@ -166,6 +167,27 @@ def numbers_by_line(
         token_lines[first_of_line] + first_line,
         token_starts[first_of_line],
     )
+
+
+def rows_of_numbers(
+    text: bytes, width: int, path: str | os.PathLike[str], first_line: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
+    """``text`` as rows of ``width`` numbers: the ``(N, width)`` float64 table and each row's line
+    number ``(N,)`` (``first_line`` being the first line of ``text``); blank lines are skipped.
+
+    The general way's counterpart of :func:`read_table` for rows of one length. Raises
+    FormatError naming the first line that holds another number of values, or that holds a
+    value that is not a number.
+    """
+    values, counts, line_numbers, _ = numbers_by_line(text, path, first_line)
+    wrong = np.flatnonzero(counts != width)
+    if len(wrong):
+        raise FormatError(
+            path,
+            f"line {line_numbers[wrong[0]]} has {counts[wrong[0]]} values; the rows before it "
+            f"have {width}",
+        )
+    return values.reshape(-1, width), line_numbers
 
 
 def _numbers(text: bytes) -> np.ndarray | None:

@@ -20,7 +20,7 @@ import os
 import warnings
 import zipfile
 import zlib
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +58,19 @@ def looks_like_npz(head: bytes) -> bool:
     return head.startswith(ZIP_MAGIC)
 
 
+# What zipfile raises for an archive it cannot read.
+_ZIP_ERRORS = (
+    zipfile.BadZipFile,
+    zipfile.LargeZipFile,
+    zlib.error,
+    EOFError,
+    OSError,
+    RuntimeError,  # encrypted members
+    NotImplementedError,  # compression methods zipfile lacks
+    ValueError,
+)
+
+
 def read_npz(path: Path, points: str | None = None) -> PointCloud:
     """Read a ``.npz`` archive as a cloud; ``points`` names the member holding the points."""
     archive_size = path.stat().st_size
@@ -68,19 +81,43 @@ def read_npz(path: Path, points: str | None = None) -> PointCloud:
             deflated = any(info.compress_type != zipfile.ZIP_STORED for info in members.values())
     except FormatError:
         raise
-    except (
-        zipfile.BadZipFile,
-        zipfile.LargeZipFile,
-        zlib.error,
-        EOFError,
-        OSError,
-        RuntimeError,  # encrypted members
-        NotImplementedError,  # compression methods zipfile lacks
-        ValueError,
-    ) as error:
+    except _ZIP_ERRORS as error:
         raise FormatError(path, f"not a readable .npz (zip) archive: {error}") from None
     cloud.metadata["encoding"] = "deflated" if deflated else "stored"
     return cloud
+
+
+def read_member_headers(path: Path) -> dict[str, ArrayHeader]:
+    """Each array member's ``.npy`` header by name (without ``.npy``), its sizes checked as
+    :func:`read_npz` checks them; no array is read."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            members = _array_members(archive, path, path.stat().st_size)
+            return _member_headers(archive, members, path)
+    except FormatError:
+        raise
+    except _ZIP_ERRORS as error:
+        raise FormatError(path, f"not a readable .npz (zip) archive: {error}") from None
+
+
+def points_members(names: Collection[str]) -> tuple[str, ...]:
+    """The members that hold the points, any case: the first of :data:`POINT_KEYS` present, else
+    ``x``, ``y`` and ``z``; ``()`` when there are none."""
+    lower = {name.lower(): name for name in names}
+    key = next((lower[key] for key in POINT_KEYS if key in lower), None)
+    if key is not None:
+        return (key,)
+    return tuple(lower[axis] for axis in "xyz") if all(axis in lower for axis in "xyz") else ()
+
+
+def _member_headers(
+    archive: zipfile.ZipFile, members: Mapping[str, zipfile.ZipInfo], path: Path
+) -> dict[str, ArrayHeader]:
+    headers = {}
+    for name, info in members.items():
+        with archive.open(info) as stream:
+            headers[name] = read_array_header(stream, path, name)
+    return headers
 
 
 def _array_members(
@@ -114,29 +151,21 @@ def _cloud_from_members(
     points_key: str | None,
 ) -> PointCloud:
     """Points from the points member (or x, y, z members), fields from the per-point members."""
-    lower = {name.lower(): name for name in members}
-    if points_key is not None:
-        if points_key not in members:
-            raise FormatError(
-                path, f"no member {points_key!r}; the archive holds {sorted(members)}"
-            )
-        key = points_key
-    else:
-        key = next((lower[k] for k in POINT_KEYS if k in lower), None)
-    headers = {}
-    for name, info in members.items():
-        with archive.open(info) as stream:
-            headers[name] = read_array_header(stream, path, name)
+    if points_key is not None and points_key not in members:
+        raise FormatError(path, f"no member {points_key!r}; the archive holds {sorted(members)}")
+    found = (points_key,) if points_key is not None else points_members(members)
+    key = found[0] if len(found) == 1 else None
+    headers = _member_headers(archive, members, path)
     cloud: PointCloud | None = None
     if key is not None:
         array = _read_member(archive, members[key], headers[key], path, key)
-        found = cloud_from_array(array, path, f"member {key!r}")
-        if not isinstance(found, PointCloud):
+        read = cloud_from_array(array, path, f"member {key!r}")
+        if not isinstance(read, PointCloud):
             raise FormatError(path, f"member {key!r} holds no x, y, z")
-        cloud = found
+        cloud = read
         lead = cloud.shape or (len(cloud),)
-    elif all(axis in lower for axis in "xyz"):
-        lead = headers[lower["x"]].shape[:1]
+    elif found:  # x, y, z members
+        lead = headers[found[0]].shape[:1]
     else:
         raise FormatError(
             path,
@@ -226,8 +255,6 @@ def write_npz(path: Path, cloud: PointCloud, encoding: str | None = None) -> Non
     ``encoding`` ``stored`` (np.savez, the default) or ``deflated`` (np.savez_compressed).
     Organised clouds are written as ``(H, W, ...)`` arrays, which read back organised.
     """
-    if not isinstance(cloud, PointCloud):
-        raise FormatError(path, ".npz needs points; write records without x/y/z as .npy")
     lead = cloud.shape or (len(cloud),)
     arrays = {"points": cloud.points.reshape(*lead, 3)}
     skipped = []

@@ -57,8 +57,8 @@ import numpy as np
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats.ascii import (
     TableError,
-    numbers_by_line,
     read_table,
+    rows_of_numbers,
     skip_lines,
     write_rows,
 )
@@ -114,17 +114,17 @@ def looks_like_ptx(head: bytes) -> bool:
         return False
     if len(complete) >= 3:
         tokens = complete[2].split()
-        return len(tokens) == 3 and _are_numbers(tokens)
+        return len(tokens) == 3 and _floats(tokens) is not None
     tokens = partial.split()[:-1]  # the last token may be cut short
-    return bool(partial.strip()) and len(tokens) <= 3 and _are_numbers(tokens)
+    return bool(partial.strip()) and len(tokens) <= 3 and _floats(tokens) is not None
 
 
-def _are_numbers(tokens: Sequence[bytes]) -> bool:
+def _floats(tokens: Sequence[bytes]) -> list[float] | None:
+    """The tokens as floats; None when one is not a number."""
     try:
-        [float(token) for token in tokens]
+        return [float(token) for token in tokens]
     except ValueError:
-        return False
-    return True
+        return None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -198,8 +198,8 @@ def _read_header(
                 )
             values.append(int(tokens[0]))
         else:
-            numbers = _finite_numbers(tokens)
-            if numbers is None or len(numbers) != expected:
+            numbers = _floats(tokens)
+            if numbers is None or len(numbers) != expected or not np.isfinite(numbers).all():
                 raise FormatError(
                     path, f"{where}: expected {expected} numbers, found {text.strip()[:60]!r}"
                 )
@@ -213,14 +213,6 @@ def _read_header(
         transform=np.array(values[6:10]),
     )
     return header, min(position, len(data))
-
-
-def _finite_numbers(tokens: list[bytes]) -> list[float] | None:
-    try:
-        numbers = [float(token) for token in tokens]
-    except ValueError:
-        return None
-    return numbers if all(np.isfinite(numbers)) else None
 
 
 def _row_width(data: bytes, position: int, line: int, path: Path) -> int:
@@ -243,21 +235,13 @@ def _parse_rows(
     green blue uint8 when ``width`` is 7.
 
     pyarrow's CSV reader is the fast path (values one space apart, colours integers 0..255);
-    anything else goes to :func:`numbers_by_line`, which names the line of any error.
+    anything else goes to :func:`rows_of_numbers`, which names the line of any error.
     """
     types = [np.dtype(np.float64)] * 4 + [np.dtype(np.uint8)] * (width - 4)
     try:
         columns = read_table(body, types, " ")
     except TableError:
-        values, counts, line_numbers, _ = numbers_by_line(bytes(body), path, line)
-        wrong = np.flatnonzero(counts != width)
-        if len(wrong):
-            raise FormatError(
-                path,
-                f"line {line_numbers[wrong[0]]} has {counts[wrong[0]]} values; the rows of "
-                f"this file have {width}",
-            ) from None
-        table = values.reshape(-1, width)
+        table, line_numbers = rows_of_numbers(bytes(body), width, path, line)
         columns = list(table[:, :4].T)
         if width == 7:
             colors = table[:, 4:]

@@ -60,8 +60,8 @@ import numpy as np
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats.ascii import (
     TableError,
-    numbers_by_line,
     read_table,
+    rows_of_numbers,
     write_rows,
 )
 from pointfield.clouds.formats.columns import (
@@ -317,7 +317,7 @@ def _parse_rows(data: bytes, preamble: _Preamble, width: int, path: Path) -> lis
 
     pyarrow's CSV reader is the fast path; it needs exactly one delimiter between values.
     Anything else (runs of spaces, tabs mixed with spaces, ``1, 2, 3``) goes to
-    :func:`numbers_by_line`, which also names the line of any error.
+    :func:`rows_of_numbers`, which also names the line of any error.
     """
     body = memoryview(data)[preamble.data_start :]
     try:
@@ -327,15 +327,8 @@ def _parse_rows(data: bytes, preamble: _Preamble, width: int, path: Path) -> lis
     text = data[preamble.data_start :]
     if preamble.delimiter != " ":
         text = text.translate(_DELIMITERS_TO_SPACES)
-    values, counts, line_numbers, _ = numbers_by_line(text, path, preamble.data_line)
-    wrong = np.flatnonzero(counts != width)
-    if len(wrong):
-        raise FormatError(
-            path,
-            f"line {line_numbers[wrong[0]]} has {counts[wrong[0]]} values; the rows before it "
-            f"have {width}",
-        )
-    return list(values.reshape(-1, width).T)
+    table, _ = rows_of_numbers(text, width, path, preamble.data_line)
+    return list(table.T)
 
 
 _DELIMITERS_TO_SPACES = bytes.maketrans(b",;", b"  ")

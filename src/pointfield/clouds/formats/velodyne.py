@@ -16,7 +16,9 @@ evidence, strongest first:
 
 A single fitting layout is read (with a warning when the name said otherwise); two are decided
 by the name; none is a FormatError that names ``columns=`` and the counts the size allows, so
-a scan of another layout (ScanNet's 6 columns) is refused rather than read as garbage.
+a scan of another layout (ScanNet's 6 columns) is refused rather than read as garbage. The
+guess reads two 160 KB blocks: on a 120,000-point KITTI scan, 0.5 ms on top of a 0.7 ms read
+(one 2-core CPU, warm page cache); ``columns=`` skips it.
 
 =======  ========================  ==========================================================
 columns  dataset                   fields
@@ -91,9 +93,7 @@ def read_velodyne(path: Path, columns: int | None = None) -> PointCloud:
     # the output and nothing more.
     with open(path, "rb") as file:
         records = read_records(map_file(file), np.dtype((RECORD_DTYPE, columns)), size // record)
-    cloud = cloud_from_records(records)
-    del records
-    return cloud
+    return cloud_from_records(records)
 
 
 def cloud_from_records(records: np.ndarray) -> PointCloud:
@@ -169,17 +169,20 @@ def _sample(path: Path, size: int) -> np.ndarray:
 def _implausible(values: np.ndarray, columns: int) -> str | None:
     """Why ``values`` read as ``columns``-column records are not a scan, or None if they may be."""
     records = values[: len(values) // columns * columns].reshape(-1, columns)
-    xyz = records[:, :3]
-    measured = np.isfinite(xyz).all(axis=1)  # NaN rows are points without a return
+    # Column by column: numpy's reductions across a row of three are ten times slower, and this
+    # runs on every .bin read without columns=.
+    x, y, z = records[:, 0], records[:, 1], records[:, 2]
+    measured = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)  # NaN rows: no return
     if not measured.any():
         return None if len(records) else "no records"
-    coordinates = xyz[measured]
-    if np.abs(coordinates).max() >= MAX_COORDINATE:
-        return f"gives coordinates of {np.abs(coordinates).max():.3g}"
-    if len(coordinates) >= MIN_RECORDS_FOR_COUNTS:
-        counts = (coordinates == np.round(coordinates)) & (coordinates != 0)
-        if counts.mean(axis=0).max() > 0.5:
-            return "gives coordinates that are mostly whole numbers (counts or colours?)"
+    coordinates = [axis[measured] for axis in (x, y, z)]
+    largest = max(np.abs(axis).max() for axis in coordinates)
+    if largest >= MAX_COORDINATE:
+        return f"gives coordinates of {largest:.3g}"
+    if len(coordinates[0]) >= MIN_RECORDS_FOR_COUNTS and any(
+        ((axis == np.round(axis)) & (axis != 0)).mean() > 0.5 for axis in coordinates
+    ):
+        return "gives coordinates that are mostly whole numbers (counts or colours?)"
     intensity = records[:, 3]
     if not np.isfinite(intensity).all() or intensity.min() < 0:
         return "gives negative or non-finite intensities"

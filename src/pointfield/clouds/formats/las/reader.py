@@ -70,18 +70,20 @@ def _read_laz(
     """The header and point records of a LAZ file, by lazrs or, where it fails, by LASzip.
 
     A failure of every decompressor is one FormatError giving each one's reason; the report
-    Rust prints when lazrs panics is kept off standard error.
+    Rust prints when lazrs panics is kept off standard error (one capture for the whole read,
+    chunk table included: each costs a temporary file and two dup2 calls).
     """
     failures = []
-    for backend in laz_backends(path, file, layout, size):
-        name = "LASzip" if backend is laspy.LazBackend.Laszip else "lazrs"
-        try:
-            with rust_panics_quiet(), library_errors(path, f"{name} could not read it"):
-                file.seek(0)
-                reader = laspy.LasReader(file, closefd=False, laz_backend=backend)
-                return reader.header, _decompress(path, reader, layout, size)
-        except FormatError as error:
-            failures.append(error.reason)
+    with rust_panics_quiet():
+        for backend in laz_backends(path, file, layout, size):
+            name = "LASzip" if backend is laspy.LazBackend.Laszip else "lazrs"
+            try:
+                with library_errors(path, f"{name} could not read it"):
+                    file.seek(0)
+                    reader = laspy.LasReader(file, closefd=False, laz_backend=backend)
+                    return reader.header, _decompress(path, reader, layout, size)
+            except FormatError as error:
+                failures.append(error.reason)
     raise FormatError(path, "; ".join(failures))
 
 

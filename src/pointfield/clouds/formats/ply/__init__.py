@@ -42,9 +42,10 @@ in all three encodings). Types PLY has no name for are converted when no value c
 uchar, float16 -> float) and refused with a FormatError otherwise. PLY has no 64-bit integers:
 int64 / uint64 fields are written as uint or int (the source's signedness first) when every
 value fits in 32 bits, else as double when every value is exact in one (|v| <= 2**53), each with
-a warning naming the field and the type it reads back as; larger values are refused. ``(N, K)`` fields other than colours and normals are written
-as lists of K items. Ascii floats are written in the shortest form that reads back to the same
-float32 / float64 value.
+a warning naming the field and the type it reads back as; larger values are refused. Faces'
+vertex indices of any integer type are written as int without a warning. ``(N, K)`` fields other
+than colours and normals are written as lists of K items. Ascii floats are written in the
+shortest form that reads back to the same float32 / float64 value.
 
 The package reads like the format: ``header`` (the header's grammar and types), ``reader`` (the
 data section and how it maps onto pointfield objects), ``writer``.

@@ -6,7 +6,7 @@ See the package docstring for what is written and which fields PLY cannot hold.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -93,14 +93,14 @@ def _elements_to_write(path: Path, cloud: PointCloud | Records) -> list[_OutElem
     elements = [_out_element(path, "vertex", _ply_columns(path, "vertex", points, cloud.fields))]
     if isinstance(cloud, Mesh):
         _check_faces_to_write(path, cloud)
-        face_columns = _ply_columns(path, "face", None, {"vertex_indices": _as_int32_indices(cloud.faces)})
+        face_columns = _ply_columns(path, "face", None, {"vertex_indices": cloud.faces})
         for name, values in _ply_columns(path, "face", None, cloud.face_fields).items():
             if name in face_columns:
                 raise FormatError(
                     path, f"face field {name!r} clashes with the faces' vertex_indices"
                 )
             face_columns[name] = values
-        elements.append(_out_element(path, "face", face_columns))
+        elements.append(_out_element(path, "face", face_columns, indices=("vertex_indices",)))
     extra = cloud.metadata.get("ply_elements") or {}
     if not isinstance(extra, Mapping):
         raise FormatError(
@@ -151,9 +151,15 @@ def _ply_columns(
     return columns
 
 
-def _out_element(path: Path, name: str, columns: Mapping[str, np.ndarray]) -> _OutElement:
+def _out_element(
+    path: Path, name: str, columns: Mapping[str, np.ndarray], indices: Collection[str] = ()
+) -> _OutElement:
+    """The element's columns ready to write; ``indices`` names those holding vertex indices."""
     _check_name(path, "element", name)
-    prepared = [_column_to_write(path, name, column, values) for column, values in columns.items()]
+    prepared = [
+        _column_to_write(path, name, column, values, index=column in indices)
+        for column, values in columns.items()
+    ]
     counts = {len(c.lengths) if c.lengths is not None else len(c.values) for c in prepared}
     if len(counts) > 1:
         raise FormatError(
@@ -169,44 +175,38 @@ def _check_name(path: Path, kind: str, name: str) -> None:
         )
 
 
-def _column_to_write(path: Path, element: str, name: str, values: np.ndarray) -> _Column:
+def _column_to_write(
+    path: Path, element: str, name: str, values: np.ndarray, *, index: bool = False
+) -> _Column:
     _check_name(path, "property", name)
     label = f"{element} property {name!r}"
     if values.dtype == object:
         items = [np.asarray(item) for item in values]
         if all(item.ndim == 0 for item in items):
-            return _Column(name, _storable(path, label, np.array([i.item() for i in items])))
+            scalars = np.array([i.item() for i in items])
+            return _Column(name, _storable(path, label, scalars, index=index))
         if not all(item.ndim == 1 for item in items):
             raise FormatError(
                 path, f"{label} mixes arrays of several dimensions; PLY lists are 1-D"
             )
         lengths = np.array([len(item) for item in items], np.int64)
         flat = np.concatenate(items) if items else np.zeros(0, np.int32)
-        return _Column(name, _storable(path, label, flat), lengths)
+        return _Column(name, _storable(path, label, flat, index=index), lengths)
     if values.ndim == 0 or values.ndim > 2:
         raise FormatError(
             path, f"{label} has shape {values.shape}; PLY holds (N,) scalars or (N, K) lists"
         )
-    return _Column(name, _storable(path, label, values))
+    return _Column(name, _storable(path, label, values, index=index))
 
 
-def _as_int32_indices(faces: np.ndarray) -> np.ndarray:
-    """Vertex indices as PLY's usual ``int`` where they fit (every mesh under 2**31 vertices), without
-    the 64-bit narrowing warning: a face's vertex index is an index, whatever dtype it was kept in."""
-    wide = faces.dtype != object and faces.dtype.kind in "iu" and faces.dtype.itemsize > 4 and faces.size
-    if wide and 0 <= faces.min() and faces.max() <= np.iinfo(np.int32).max:
-        return faces.astype(np.int32)
-    return faces
-
-
-def _storable(path: Path, label: str, values: np.ndarray) -> np.ndarray:
+def _storable(path: Path, label: str, values: np.ndarray, *, index: bool = False) -> np.ndarray:
     """``values`` in a native-order dtype PLY has a type name for, converted only when no value
-    changes; FormatError otherwise."""
+    changes; FormatError otherwise. ``index``: the values are vertex indices."""
     dtype = values.dtype
     if dtype.kind == "b":
         return values.astype(np.uint8)
     if dtype.kind in "iu" and dtype.itemsize > 4:
-        return _without_64_bit_integers(path, label, values)
+        return _without_64_bit_integers(path, label, values, index)
     if dtype.kind == "f" and dtype.itemsize != 4 and dtype.itemsize != 8:
         target = np.float32 if dtype.itemsize < 4 else np.float64
         converted = values.astype(target)
@@ -222,20 +222,27 @@ def _storable(path: Path, label: str, values: np.ndarray) -> np.ndarray:
     return values.astype(dtype.newbyteorder("="), copy=False)
 
 
-def _without_64_bit_integers(path: Path, label: str, values: np.ndarray) -> np.ndarray:
+def _without_64_bit_integers(
+    path: Path, label: str, values: np.ndarray, index: bool
+) -> np.ndarray:
     """int64 / uint64 values as a type PLY has, with a warning: PLY has no 64-bit integers.
 
     Values that fit 32 bits are written as int / uint (the source's signedness first); values
     beyond that but exact in a double (|v| <= 2**53) as double, which reads back as float64;
-    anything larger is refused.
+    anything larger is refused. Vertex indices (``index``) that fit PLY's usual ``int`` (every
+    mesh under 2**31 vertices) are written as int without a warning: an index is an index,
+    whatever dtype it was kept in.
     """
     dtype = values.dtype
     low = int(values.min()) if values.size else 0
     high = int(values.max()) if values.size else 0
-    targets = (np.uint32, np.int32) if dtype.kind == "u" else (np.int32, np.uint32)
+    signed_first = index or dtype.kind == "i"
+    targets = (np.int32, np.uint32) if signed_first else (np.uint32, np.int32)
     for target in targets:
         info = np.iinfo(target)
         if info.min <= low and high <= info.max:
+            if index and target is np.int32:
+                return values.astype(target)
             warnings.warn(
                 f"PLY has no 64-bit integers; {label} ({dtype}) is written as "
                 f"{np.dtype(target)}, which holds every value, and reads back as that",
