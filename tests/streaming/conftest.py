@@ -11,8 +11,6 @@ import pytest
 import pointfield
 from pointfield.clouds.cloud import PointCloud
 
-CHUNK = 3_000  # points per chunk in the tests: small, so that every file is many chunks
-
 
 def lidar_cloud(count: int = 40_000, seed: int = 0) -> PointCloud:
     """A lidar-like cloud: UTM-sized float64 points on a gently sloping strip, with intensity,
@@ -34,6 +32,20 @@ def lidar_cloud(count: int = 40_000, seed: int = 0) -> PointCloud:
 def make_lidar():
     """:func:`lidar_cloud`, for tests that generate their own."""
     return lidar_cloud
+
+
+@pytest.fixture(scope="session")
+def written():
+    """``written(path, cloud)``: write ``cloud`` with :func:`pointfield.write` (its notes
+    silenced) and return the file's bytes, the ones a streamed output must equal."""
+
+    def write(path: Path, cloud: PointCloud) -> bytes:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            pointfield.write(path, cloud)
+        return path.read_bytes()
+
+    return write
 
 
 @pytest.fixture(scope="session")

@@ -2,32 +2,24 @@
 
 from __future__ import annotations
 
-import importlib
 import struct
-import warnings
 
 import numpy as np
 import pytest
 
 import pointfield
 from pointfield.clouds.ops import voxel_downsample
-from pointfield.streaming import downsample
+from pointfield.streaming import downsample, jobs, voxels
 from pointfield.streaming import writers as writers_module
-from pointfield.streaming.downsample import random_sample
+from pointfield.streaming.downsampling import random_sample
+from pointfield.streaming.memory import MemoryPlan
 from pointfield.streaming.voxels import voxel_nearest
 
 CHUNK = 3_000
 
 
-def written(path, cloud):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        pointfield.write(path, cloud)
-    return path.read_bytes()
-
-
 @pytest.mark.parametrize("kind", ["laz", "ply", "bin"])
-def test_voxel_centroids_are_the_in_memory_ones_exactly(tmp_path, data, kind):
+def test_voxel_centroids_are_the_in_memory_ones_exactly(tmp_path, data, written, kind):
     out = tmp_path / f"out.{kind}"
     result = downsample(data[kind], out, 0.9, points=CHUNK)
     expected = voxel_downsample(pointfield.read(data[kind]), 0.9)
@@ -40,17 +32,24 @@ def test_one_chunk_many_chunks_and_a_tiny_memory_budget_give_the_same_bytes(tmp_
     downsample(data["laz"], tmp_path / "many.laz", 0.5, points=1_000)
     # Any real budget holds this small cloud's voxels; shrink the state's share to 20 kB so
     # that voxel ranges are parked on disk and reduced one by one.
-    module = importlib.import_module("pointfield.streaming.downsample")
-    tiny = module.plan("256M", 64, 1_000)
-    monkeypatch.setattr(module, "plan", lambda *args: type(tiny)(tiny.budget, 1_000, 20_000))
+    monkeypatch.setattr(jobs, "plan", lambda budget, *args: MemoryPlan(256 << 20, 1_000, 20_000))
+    parked = []
+    park_one = voxels._park_one
+
+    def counting_park_one(*args):
+        parked.append(args)
+        park_one(*args)
+
+    monkeypatch.setattr(voxels, "_park_one", counting_park_one)
     downsample(data["laz"], tmp_path / "parked.laz", 0.5)
+    assert parked, "the state was never parked: the test would prove nothing"
     one = (tmp_path / "one.laz").read_bytes()
     assert (tmp_path / "many.laz").read_bytes() == one
     assert (tmp_path / "parked.laz").read_bytes() == one
     assert sorted(p.name for p in tmp_path.iterdir()) == ["many.laz", "one.laz", "parked.laz"]
 
 
-def test_nearest_to_centre_keeps_real_points_as_the_in_memory_reference_does(tmp_path, data):
+def test_nearest_to_centre_keeps_real_points_as_the_in_memory_reference_does(tmp_path, data, written):
     out = tmp_path / "out.ply"
     downsample(data["ply"], out, 0.9, mode="nearest", points=CHUNK)
     cloud = pointfield.read(data["ply"])
@@ -61,7 +60,7 @@ def test_nearest_to_centre_keeps_real_points_as_the_in_memory_reference_does(tmp
     assert all(tuple(p) in kept for p in pointfield.read(out).points.tolist())
 
 
-def test_every_and_random_keep_the_points_the_in_memory_rules_keep(tmp_path, data):
+def test_every_and_random_keep_the_points_the_in_memory_rules_keep(tmp_path, data, written):
     cloud = pointfield.read(data["laz"])
     downsample(data["laz"], tmp_path / "every.laz", every=7, points=CHUNK)
     downsample(data["laz"], tmp_path / "random.laz", random=5_000, seed=4, points=CHUNK)
@@ -71,7 +70,7 @@ def test_every_and_random_keep_the_points_the_in_memory_rules_keep(tmp_path, dat
 
 
 @pytest.mark.parametrize("shift", [-3.0, +0.7])
-def test_a_stale_las_header_costs_a_pass_not_a_wrong_result(tmp_path, data, shift):
+def test_a_stale_las_header_costs_a_pass_not_a_wrong_result(tmp_path, data, written, shift):
     # min x is at byte 187 of the LAS header: make it lower than the points (a loose header) or
     # higher (points outside the header's box): either way the grid must start at the points.
     stale = bytearray(data["laz"].read_bytes())

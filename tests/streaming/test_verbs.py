@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import warnings
 
 import numpy as np
 import pytest
@@ -11,22 +10,15 @@ import pytest
 import pointfield
 from pointfield.cli import main
 from pointfield.clouds.cloud import PointCloud
-from pointfield.streaming import crop, merge, stats, tile
-from pointfield.streaming.crop import crop_cloud
-from pointfield.streaming.merge import merge_clouds
-from pointfield.streaming.tile import tile_cloud
+from pointfield.streaming import convert_folder, crop, merge, stats, tile
+from pointfield.streaming.cropping import crop_cloud
+from pointfield.streaming.merging import merge_clouds
+from pointfield.streaming.tiling import tile_cloud
 
 CHUNK = 3_000
 
 
-def written(path, cloud):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        pointfield.write(path, cloud)
-    return path.read_bytes()
-
-
-def test_crop_to_a_box_keeps_the_points_inside_it_bounds_included(tmp_path, data):
+def test_crop_to_a_box_keeps_the_points_inside_it_bounds_included(tmp_path, data, written):
     cloud = pointfield.read(data["laz"])
     low = cloud.points.min(axis=0)
     box = [low[0] + 10, low[1] + 5, low[0] + 60, low[1] + 50]
@@ -37,7 +29,7 @@ def test_crop_to_a_box_keeps_the_points_inside_it_bounds_included(tmp_path, data
     assert np.all((expected.points[:, 0] >= box[0]) & (expected.points[:, 0] <= box[2]))
 
 
-def test_crop_to_a_polygon_file_text_or_geojson(tmp_path, data):
+def test_crop_to_a_polygon_file_text_or_geojson(tmp_path, data, written):
     cloud = pointfield.read(data["laz"])
     x0, y0, _ = cloud.points.min(axis=0)
     triangle = np.array([[x0 + 5, y0 + 5], [x0 + 100, y0 + 10], [x0 + 40, y0 + 75]])
@@ -51,7 +43,7 @@ def test_crop_to_a_polygon_file_text_or_geojson(tmp_path, data):
         assert (tmp_path / f"{name}.laz").read_bytes() == written(tmp_path / "e.laz", expected)
 
 
-def test_tiles_with_a_buffer_are_the_in_memory_tiles(tmp_path, data):
+def test_tiles_with_a_buffer_are_the_in_memory_tiles(tmp_path, data, written):
     cloud = pointfield.read(data["ply"])
     result = tile(data["ply"], tmp_path / "tiles", 25.0, buffer=2.0, points=CHUNK)
     expected = tile_cloud(cloud, 25.0, buffer=2.0)
@@ -66,7 +58,7 @@ def test_tiles_with_a_buffer_are_the_in_memory_tiles(tmp_path, data):
     assert tile(data["ply"], tmp_path / "tiles", 25.0, buffer=2.0, points=CHUNK)["skipped"]
 
 
-def test_merge_concatenates_in_order_keeping_the_fields_every_input_has(tmp_path, data, make_lidar):
+def test_merge_concatenates_in_order_keeping_the_fields_every_input_has(tmp_path, data, written, make_lidar):
     other = make_lidar(5_000, seed=3)
     del other.fields["gps_time"]
     second = tmp_path / "second.laz"
@@ -119,14 +111,12 @@ def test_the_command_line_names_the_file_of_a_bad_input(tmp_path, data, capsys):
     assert not (tmp_path / "out.ply").exists()
 
 
-def test_a_folder_converts_file_by_file_and_a_rerun_skips_what_is_done(tmp_path, data):
+def test_a_folder_converts_file_by_file_and_a_rerun_skips_what_is_done(tmp_path, data, written):
     scans = tmp_path / "scans"
     (scans / "day2").mkdir(parents=True)
     rng = np.random.default_rng(0)
     for name in ("a.bin", "b.bin", "day2/c.bin"):
         written(scans / name, PointCloud(rng.random((500, 3), np.float32), {"intensity": rng.random(500, np.float32)}))
-    from pointfield.streaming import convert_folder
-
     first = convert_folder(scans, tmp_path / "out", ".ply")
     assert (first["converted"], first["skipped"]) == (3, 0)
     assert (tmp_path / "out" / "day2" / "c.ply").exists()

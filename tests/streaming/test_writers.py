@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import warnings
 
+import numpy as np
 import pytest
 
 import pointfield
+from pointfield.clouds.cloud import PointCloud
 from pointfield.streaming import StreamingFallback, open_writer
 
 CHUNK = 3_000
@@ -32,6 +34,21 @@ def test_chunked_writing_gives_the_bytes_of_writing_whole(tmp_path, data, suffix
     whole, chunked = tmp_path / f"whole{suffix}", tmp_path / f"chunked{suffix}"
     write_both(whole, chunked, data["laz"], encoding)
     assert chunked.read_bytes() == whole.read_bytes()
+
+
+@pytest.mark.parametrize("bounds", [False, True])
+def test_las_renames_fields_it_cannot_name_as_writing_whole_does(tmp_path, bounds):
+    rng = np.random.default_rng(0)
+    cloud = PointCloud(rng.random((5_000, 3)) * 100, {"GpsTime": rng.random(5_000) * 1e5,
+                                                      "las:pointSourceId": np.arange(5_000, dtype=np.uint16),
+                                                      "e57:rowIndex": np.arange(5_000, dtype=np.int32)})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pointfield.write(tmp_path / "whole.las", cloud)
+        with open_writer(tmp_path / "chunked.las", bounds=cloud.bounds() if bounds else None) as writer:
+            for start in range(0, len(cloud), 1_200):
+                writer.write(cloud.select(slice(start, start + 1_200)))
+    assert (tmp_path / "chunked.las").read_bytes() == (tmp_path / "whole.las").read_bytes()
 
 
 def test_las_bounds_given_up_front_give_the_same_file_as_bounds_found_at_the_end(tmp_path, data):

@@ -22,7 +22,9 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from pointfield import streaming
 from pointfield.errors import PointfieldError
+from pointfield.streaming.statistics import format_stats
 
 COLUMNS_HELP = "float32 values per point of a raw .bin scan (default 4: KITTI x y z intensity)"
 
@@ -162,36 +164,32 @@ def _quietly(function: Any, *args: Any, **kwargs: Any) -> dict[str, Any]:
     return result
 
 
-def run_downsample(args: argparse.Namespace) -> int:
-    from pointfield.streaming import downsample
+def _kept(args: argparse.Namespace, result: dict[str, Any]) -> str:
+    return f"wrote {args.destination}: {result.get('output_points', 0):,} of {result.get('input_points', 0):,} points"
 
+
+def run_downsample(args: argparse.Namespace) -> int:
     if args.nearest and args.voxel is None:
         raise PointfieldError("--nearest applies to --voxel")
     result = _quietly(
-        downsample, args.source, args.destination, args.voxel,
+        streaming.downsample, args.source, args.destination, args.voxel,
         mode="nearest" if args.nearest else "centroid", random=args.random, every=args.every,
         seed=args.seed, encoding=args.encoding, columns=args.columns, **scale_options(args),
     )
-    return _report(args, result, f"wrote {args.destination}: {result.get('output_points', 0):,} of "
-                   f"{result.get('input_points', 0):,} points")
+    return _report(args, result, _kept(args, result))
 
 
 def run_crop(args: argparse.Namespace) -> int:
-    from pointfield.streaming import crop
-
     result = _quietly(
-        crop, args.source, args.destination, box=args.box, polygon=args.polygon,
+        streaming.crop, args.source, args.destination, box=args.box, polygon=args.polygon,
         encoding=args.encoding, columns=args.columns, **scale_options(args),
     )
-    return _report(args, result, f"wrote {args.destination}: {result.get('output_points', 0):,} of "
-                   f"{result.get('input_points', 0):,} points")
+    return _report(args, result, _kept(args, result))
 
 
 def run_tile(args: argparse.Namespace) -> int:
-    from pointfield.streaming import tile
-
     result = _quietly(
-        tile, args.source, args.destination, args.size, buffer=args.buffer, origin=args.origin,
+        streaming.tile, args.source, args.destination, args.size, buffer=args.buffer, origin=args.origin,
         suffix=args.to, encoding=args.encoding, columns=args.columns, **scale_options(args),
     )
     tiles = result.get("tiles", [])
@@ -200,9 +198,7 @@ def run_tile(args: argparse.Namespace) -> int:
 
 
 def run_merge(args: argparse.Namespace) -> int:
-    from pointfield.streaming import merge
-
-    result = _quietly(merge, args.sources, args.destination, encoding=args.encoding, columns=args.columns,
+    result = _quietly(streaming.merge, args.sources, args.destination, encoding=args.encoding, columns=args.columns,
                       **scale_options(args))
     return _report(args, result, f"wrote {args.destination}: {result.get('output_points', 0):,} points "
                    f"from {len(args.sources)} files")
@@ -210,28 +206,24 @@ def run_merge(args: argparse.Namespace) -> int:
 
 def run_stats(args: argparse.Namespace) -> int:
     """``cloud info FILE --stats``."""
-    from pointfield.streaming.stats import format_stats, stats
-
-    info = _quietly(stats, args.file, columns=args.columns, **scale_options(args, outputs=False))
+    info = _quietly(streaming.stats, args.file, columns=args.columns, **scale_options(args, outputs=False))
     print(json.dumps(info, indent=2) if args.json else format_stats(info))
     return 0
 
 
 def run_streaming_convert(args: argparse.Namespace) -> int:
     """``cloud convert`` with a folder or a scale option: streamed, per file on Dask."""
-    from pointfield.streaming import convert, convert_folder
-
     options = scale_options(args)
     if args.source.is_dir():
         options.pop("scratch")
-        result = _quietly(convert_folder, args.source, args.destination, args.to, pattern=args.pattern,
+        result = _quietly(streaming.convert_folder, args.source, args.destination, args.to, pattern=args.pattern,
                           encoding=args.encoding, columns=args.columns, **options)
         print(f"converted {result['converted']} of {result['files']} files into {args.destination} "
               f"({result['skipped']} already there; {result['points']:,} points)")
         return 0
     if args.to is not None or args.pattern is not None:
         raise PointfieldError("--to and --pattern apply to a folder IN; name OUT with its suffix instead")
-    result = _quietly(convert, args.source, args.destination, encoding=args.encoding, columns=args.columns,
+    result = _quietly(streaming.convert, args.source, args.destination, encoding=args.encoding, columns=args.columns,
                       **options)
     if not result.get("skipped"):
         print(f"wrote {args.destination}: {result['output_points']:,} points (streamed)")

@@ -37,11 +37,11 @@ from typing import Any
 
 import laspy
 import numpy as np
+from laspy.copc import Bounds, CopcReader, load_octree_for_query
 
 from pointfield.clouds.cloud import PointCloud, Records
 from pointfield.clouds.formats import format_of, read
 from pointfield.clouds.formats.binary import record_dtype
-from pointfield.clouds.formats.columns import columns_to_cloud_parts
 from pointfield.clouds.formats.las.layout import check_layout, check_laz
 from pointfield.clouds.formats.las.library import library_errors
 from pointfield.clouds.formats.las.reader import _cloud_parts, _metadata
@@ -50,7 +50,8 @@ from pointfield.clouds.formats.pcd.header import MAX_HEADER_BYTES as PCD_HEADER_
 from pointfield.clouds.formats.pcd.header import parse_header as parse_pcd_header
 from pointfield.clouds.formats.pcd.reader import _assemble as assemble_pcd
 from pointfield.clouds.formats.ply.header import BYTE_ORDERS, HEADER_LIMIT, parse_header
-from pointfield.clouds.formats.ply.reader import _empty_columns, _face_index_property
+from pointfield.clouds.formats.ply.reader import _assemble as assemble_ply
+from pointfield.clouds.formats.ply.reader import _empty_columns
 from pointfield.clouds.formats.velodyne import (
     RECORD_DTYPE,
     cloud_from_records,
@@ -303,8 +304,6 @@ class CopcSource(ChunkSource):
     """
 
     def __init__(self, path: Path, bounds: Any, level: int | range | None, resolution: float | None):
-        from laspy.copc import Bounds, CopcReader, load_octree_for_query
-
         self.path = path
         with library_errors(path, "laspy could not read its COPC octree"), CopcReader.open(str(path)) as reader:
             header = reader.header
@@ -329,8 +328,7 @@ class CopcSource(ChunkSource):
         self.starts = np.cumsum([0] + [n.point_count for n in self.nodes])
         self.count = int(self.starts[-1])
         self.header = header
-        layout_metadata = LasSource(path).metadata
-        self.metadata = dict(layout_metadata)
+        self.metadata = LasSource(path).metadata
 
     def bounds_hint(self) -> tuple[np.ndarray, np.ndarray]:
         return np.asarray(self.header.mins, np.float64), np.asarray(self.header.maxs, np.float64)
@@ -356,8 +354,6 @@ class CopcSource(ChunkSource):
         yield from self._windows(windows)
 
     def _windows(self, windows: list[tuple[int, int]]) -> Iterator[PointCloud]:
-        from laspy.copc import CopcReader
-
         with library_errors(self.path, "laspy could not read its COPC octree"):
             reader = CopcReader.open(str(self.path))
         with reader:
@@ -439,14 +435,6 @@ class RecordSource(ChunkSource):
         return cloud
 
 
-def _owned(values: np.ndarray) -> np.ndarray:
-    """A compact, writable, native-order array of ``values`` (records are read-only views)."""
-    native = values.dtype.newbyteorder("=")
-    if values.dtype != native or not (values.flags.writeable and values.flags.c_contiguous):
-        return np.ascontiguousarray(values, dtype=native).copy()
-    return values
-
-
 def _ply_source(path: Path, columns: int | None) -> RecordSource | None:
     with open(path, "rb") as file:
         header = parse_header(path, file.read(HEADER_LIMIT))
@@ -467,28 +455,13 @@ def _ply_source(path: Path, columns: int | None) -> RecordSource | None:
     if vertex is None or any(prop.is_list for prop in vertex.properties):
         return None
     dtype = record_dtype([(p.name, p.dtype) for p in vertex.properties], BYTE_ORDERS[header.encoding])
-    metadata: dict[str, Any] = {"encoding": header.encoding}
-    if header.comments:
-        metadata["comments"] = header.comments
-    if header.obj_info:
-        metadata["obj_info"] = header.obj_info
-    # As read_ply keeps them: empty elements other than the vertices and a mesh's faces.
-    others = {
-        element.name: _empty_columns(element)
-        for element in header.elements
-        if element.name != "vertex"
-        and not (element.name == "face" and _face_index_property(element) is not None)
-    }
-    if others:
-        metadata["ply_elements"] = others
+    native = dtype.newbyteorder("=")
+    # The other elements are all empty: read_ply's columns for them.
+    empty = {element.name: _empty_columns(element) for element in header.elements if element.name != "vertex"}
 
     def convert(records: np.ndarray) -> PointCloud | Records:
-        columns = {name: records[name] for name in dtype.names}
-        points, fields = columns_to_cloud_parts(columns, path)
-        fields = {name: _owned(values) for name, values in fields.items()}
-        if points is None:
-            return Records(fields, dict(metadata))
-        return PointCloud(points, fields, None, dict(metadata))
+        records = records if records.dtype == native else records.astype(native)
+        return assemble_ply(path, header, {"vertex": {name: records[name] for name in native.names}, **empty})
 
     return RecordSource(path, dtype, offset, vertex.count, convert, "ply", "vertex")
 

@@ -24,17 +24,7 @@ import contextlib
 import logging
 import os
 from collections.abc import Callable, Iterator
-from pathlib import Path
 from typing import Any
-
-import numpy as np
-
-from pointfield.clouds.cloud import PointCloud
-from pointfield.streaming.arrays import corners, finite_rows
-from pointfield.streaming.chunks import open_source
-from pointfield.streaming.jobs import finite_bounds, indexed_chunks
-from pointfield.streaming.spill import Spill
-from pointfield.streaming.voxels import VoxelGrid, reduce_voxels
 
 # Environment of every local worker: one thread for every library that would start its own.
 WORKER_ENVIRONMENT = {
@@ -112,10 +102,19 @@ def piece_ranges(count: int, pieces: int, aligned: int = 1) -> list[tuple[int, i
 
 
 def run_tasks(client: Any, function: Callable[..., Any], calls: list[tuple[Any, ...]], bar: Any = None) -> list[Any]:
-    """Run ``function(*args)`` for each of ``calls`` on the cluster; results in call order.
+    """Run ``function(*args)`` for each of ``calls`` on the cluster, or here, one after another,
+    when ``client`` is None; results in call order.
 
     A task's exception (a FormatError naming a file) is raised here as it was raised there.
+    Tasks are module-level functions, so that workers import them by name.
     """
+    if client is None:
+        results = []
+        for args in calls:
+            results.append(function(*args))
+            if bar is not None:
+                bar.update(1)
+        return results
     from distributed import as_completed
 
     futures = [client.submit(function, *args, pure=False) for args in calls]
@@ -128,97 +127,3 @@ def run_tasks(client: Any, function: Callable[..., Any], calls: list[tuple[Any, 
         return client.gather(futures)
     finally:
         client.cancel(futures)
-
-
-# ---------------------------------------------------------------------------------------------
-# Tasks (module-level functions, so that workers import them by name)
-
-
-def bounds_task(path: str, options: dict[str, Any], start: int, stop: int, points: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """``(min, max, finite count)`` of the finite points of a piece."""
-    return finite_bounds(open_source(path, **options), points, start=start, stop=stop)
-
-
-def select_task(
-    path: str,
-    options: dict[str, Any],
-    start: int,
-    stop: int,
-    points: int,
-    select: Callable[[PointCloud, np.ndarray], PointCloud],
-    spill_path: str,
-) -> int:
-    """Apply ``select`` to each chunk of a piece, appending what it keeps to a spill."""
-    source = open_source(path, **options)
-    spill = None
-    for chunk, index in indexed_chunks(source, points, start, stop):
-        kept = select(chunk, index)
-        if spill is None:
-            spill = Spill(spill_path, kept)
-        spill.append(kept)
-    return 0 if spill is None else len(spill)
-
-
-def scatter_task(
-    path: str,
-    options: dict[str, Any],
-    start: int,
-    stop: int,
-    points: int,
-    grid: VoxelGrid,
-    cuts: np.ndarray,
-    folder: str,
-    piece: int,
-) -> list[int]:
-    """Sort a piece's finite points into the voxel slabs that ``cuts`` (key starts) delimit."""
-    source = open_source(path, **options)
-    spills: dict[int, Spill] = {}
-    for chunk, index in indexed_chunks(source, points, start, stop):
-        finite = finite_rows(chunk.points)
-        if finite is not None:
-            chunk, index = chunk.select(finite), index[finite]
-        keys = grid.keys(grid.cells(chunk.points.astype(np.float64)))
-        part = np.searchsorted(cuts, keys, side="right") - 1
-        for number in np.unique(part):
-            mine = part == number
-            if number not in spills:
-                os.makedirs(Path(folder) / f"slab-{number}", exist_ok=True)
-                spills[number] = Spill(Path(folder) / f"slab-{number}" / f"piece-{piece:06d}.spill", chunk, with_index=True)
-            spills[number].append(chunk.select(mine), index[mine])
-    return [len(spills[n]) if n in spills else 0 for n in range(len(cuts))]
-
-
-def reduce_task(
-    grid: VoxelGrid,
-    template: PointCloud,
-    mode: str,
-    state_bytes: int,
-    folder: str,
-    slab: int,
-    pieces: int,
-    points: int,
-    key_range: tuple[int, int],
-) -> tuple[int, np.ndarray, np.ndarray]:
-    """Reduce one slab from its pieces' spills, in piece order; the voxels go to a spill.
-
-    Returns ``(voxels, min, max)`` of the result.
-    """
-    slab_folder = Path(folder) / f"slab-{slab}"
-
-    def stream() -> Iterator[tuple[PointCloud, np.ndarray]]:
-        for piece in range(pieces):
-            spill = Spill(slab_folder / f"piece-{piece:06d}.spill", template, with_index=True)
-            yield from spill.chunks(points)
-            spill.remove()
-
-    out = Spill(Path(folder) / f"voxels-{slab:06d}.spill", template)
-    low, high = np.full(3, np.inf), np.full(3, -np.inf)
-    slab_folder.mkdir(parents=True, exist_ok=True)
-    expected = sum(len(Spill(slab_folder / f"piece-{piece:06d}.spill", template, with_index=True)) for piece in range(pieces))
-    for cloud in reduce_voxels(stream(), grid, template, mode, state_bytes, slab_folder, points, key_range,
-                               expected_points=expected):
-        if len(cloud):
-            cloud_low, cloud_high = corners(cloud.points)
-            low, high = np.minimum(low, cloud_low), np.maximum(high, cloud_high)
-        out.append(cloud)
-    return len(out), low, high

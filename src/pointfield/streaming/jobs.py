@@ -1,5 +1,6 @@
-"""What every streaming verb shares: outputs that are whole or absent, re-runs that skip them,
-a scratch folder that disappears, progress bars, and walking a source with point indices.
+"""What every streaming verb shares: a :class:`Job` (its inputs opened, its memory planned, its
+Dask client), outputs that are whole or absent, re-runs that skip them, a scratch folder that
+disappears, progress bars, and walking a source with point indices.
 
 Outputs are written through :func:`~pointfield.streaming.writers.open_writer` (a temporary
 file renamed into place), so an output that exists is complete: a killed job leaves none
@@ -14,6 +15,7 @@ import shutil
 import sys
 import tempfile
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,11 +23,80 @@ import numpy as np
 from tqdm import tqdm
 
 from pointfield.clouds.cloud import PointCloud
+from pointfield.streaming import distributed
 from pointfield.streaming.arrays import finite_corners
-from pointfield.streaming.chunks import ChunkSource
+from pointfield.streaming.chunks import ChunkSource, open_source
+from pointfield.streaming.memory import (
+    DEFAULT_MEMORY,
+    MemoryPlan,
+    plan,
+    return_freed_arrays,
+)
 
 
-def output_done(path: str | os.PathLike[str], overwrite: bool, quiet: bool = False) -> bool:
+@dataclass(frozen=True)
+class Job:
+    """One run of a verb: its opened ``sources`` (with ``templates``, empty clouds of their
+    layouts), the ``budget`` its chunks and state share, and ``client``, the Dask client it runs
+    on (None: this process). ``options`` are those the sources were opened with, for workers
+    to open them again."""
+
+    sources: list[ChunkSource]
+    templates: list[PointCloud]
+    options: dict[str, Any]
+    budget: MemoryPlan
+    client: Any
+    scratch: str | os.PathLike[str] | None
+    progress: bool
+
+    @property
+    def source(self) -> ChunkSource:
+        return self.sources[0]
+
+    @property
+    def template(self) -> PointCloud:
+        return self.templates[0]
+
+    @property
+    def points(self) -> int:
+        """Points per chunk."""
+        return self.budget.chunk_points
+
+    def pieces(self, source: ChunkSource) -> list[tuple[int, int]]:
+        """``source`` cut into ranges of consecutive points, ``PIECES_PER_WORKER`` per worker."""
+        pieces = distributed.PIECES_PER_WORKER * distributed.worker_count(self.client)
+        return distributed.piece_ranges(source.count, pieces, source.aligned)
+
+
+@contextlib.contextmanager
+def streaming_job(
+    paths: list[str | os.PathLike[str]],
+    *,
+    columns: int | None = None,
+    memory: str | int = DEFAULT_MEMORY,
+    points: int | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    client: Any = None,
+    scratch: str | os.PathLike[str] | None = None,
+    progress: bool = False,
+) -> Iterator[Job]:
+    """Open ``paths``, plan ``memory`` for the largest of their points, and run on the Dask
+    cluster that ``workers`` / ``scheduler`` / ``client`` name (:func:`~.distributed.cluster`).
+
+    A job holds its budget only if freed chunks leave the process, hence
+    :func:`~.memory.return_freed_arrays` first.
+    """
+    return_freed_arrays()
+    options = {"columns": columns} if columns is not None else {}
+    sources = [open_source(path, **options) for path in paths]
+    templates = [template_of(source) for source in sources]
+    budget = plan(memory, max(bytes_per_point(t) for t in templates), points)
+    with distributed.cluster(workers, scheduler, client) as dask_client:
+        yield Job(sources, templates, options, budget, dask_client, scratch, progress)
+
+
+def output_done(path: str | os.PathLike[str], overwrite: bool) -> bool:
     """True (and a note on stderr) when ``path`` exists and is not to be overwritten.
 
     Every output is renamed into place whole, so one that exists is complete.
@@ -33,8 +104,7 @@ def output_done(path: str | os.PathLike[str], overwrite: bool, quiet: bool = Fal
     path = Path(path)
     if overwrite or not path.exists():
         return False
-    if not quiet:
-        print(f"pointfield: {path} exists (complete); skipped — pass --overwrite to redo it", file=sys.stderr)
+    print(f"pointfield: {path} exists (complete); skipped — pass --overwrite to redo it", file=sys.stderr)
     return True
 
 

@@ -4,9 +4,9 @@ A budget is the resident memory a job may use, the interpreter and its libraries
 :func:`plan` divides it: the interpreter's own footprint (measured, at least
 ``BASELINE_BYTES``), the chunks in flight (read, converted, reduced: ``CHUNK_COPIES`` copies
 of a chunk), and what remains for a verb's running state (the voxel accumulators of
-``downsample``), which spills to disk when it outgrows its share. It also fixes glibc's mmap
-threshold (:func:`return_freed_arrays`), without which freed chunks stay resident and memory
-grows with the input rather than staying at the budget.
+``downsample``), which spills to disk when it outgrows its share. A job also fixes glibc's mmap
+threshold (:func:`return_freed_arrays`, called by :func:`~.jobs.streaming_job`), without which
+freed chunks stay resident and memory grows with the input rather than staying at the budget.
 """
 
 from __future__ import annotations
@@ -62,7 +62,6 @@ def plan(budget: int | str, bytes_per_point: int, chunk_points: int | None = Non
     the interpreter.
     """
     budget = parse_memory(budget)
-    return_freed_arrays()
     if budget < MIN_MEMORY:
         raise ValueError(f"memory budget {budget >> 20} MiB is too small; give at least 256M")
     baseline = max(BASELINE_BYTES, resident_bytes())

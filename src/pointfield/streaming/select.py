@@ -9,7 +9,6 @@ sources and writes the result, in order, to one file.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -19,13 +18,8 @@ import numpy as np
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats.las.writer import _in_int32, _three_floats
 from pointfield.streaming import distributed
-from pointfield.streaming.chunks import ChunkSource
-from pointfield.streaming.jobs import (
-    indexed_chunks,
-    progress_bar,
-    scratch_folder,
-    template_of,
-)
+from pointfield.streaming.chunks import ChunkSource, open_source
+from pointfield.streaming.jobs import Job, indexed_chunks, progress_bar, scratch_folder
 from pointfield.streaming.spill import Spill
 from pointfield.streaming.writers import open_writer
 
@@ -55,53 +49,55 @@ def writer_bounds(sources: list[ChunkSource]) -> tuple[np.ndarray, np.ndarray] |
     return (low, high) if _in_int32(low, high, scales, offsets) else None
 
 
-def select_to_file(
-    sources: list[tuple[ChunkSource, dict[str, Any]]],
-    out: Path,
-    rule: Rule,
-    encoding: str | None,
-    points: int,
-    client: Any,
-    scratch: str | os.PathLike[str] | None,
-    progress: bool,
-    what: str,
-) -> int:
-    """Write what ``rule`` keeps of every chunk of ``sources`` (in order) to ``out``.
+def select_to_file(job: Job, out: Path, rule: Rule, encoding: str | None, what: str) -> int:
+    """Write what ``rule`` keeps of every chunk of ``job``'s sources (in order) to ``out``.
 
-    ``sources`` pairs each source with the options it was opened with (for workers to open it
-    again). In this process chunk by chunk; on Dask, pieces of the files in parallel into
-    spills, then the spills in order into ``out``. Returns the points written.
+    In this process chunk by chunk; on Dask, pieces of the files in parallel into spills, then
+    the spills in order into ``out``. Returns the points written.
     """
-    bounds = writer_bounds([source for source, _ in sources])
-    first = template_of(sources[0][0])
-    if client is None:
-        if bounds is None and len(sources) == 1 and sources[0][0].count <= points:
+    bounds = writer_bounds(job.sources)
+    template = rule(job.template, np.zeros(0, np.int64))
+    if job.client is None:
+        if bounds is None and len(job.sources) == 1 and job.source.count <= job.points:
             # One chunk (a scan of a folder): its own bounds, rather than a spill, for LAS.
-            whole = sources[0][0].read(0, sources[0][0].count)
+            whole = job.source.read(0, job.source.count)
             kept = rule(whole, np.arange(len(whole), dtype=np.int64))
             with open_writer(out, encoding, bounds=kept.bounds() if len(kept) else None) as writer:
                 writer.write(kept)
                 return writer.count
         with open_writer(out, encoding, bounds=bounds) as writer:
-            writer.write(rule(first, np.zeros(0, np.int64)))
-            for source, _ in sources:
-                with progress_bar(source.count, f"{what} {source.path.name}", progress) as bar:
-                    for chunk, index in indexed_chunks(source, points, bar=bar):
+            writer.write(template)
+            for source in job.sources:
+                with progress_bar(source.count, f"{what} {source.path.name}", job.progress) as bar:
+                    for chunk, index in indexed_chunks(source, job.points, bar=bar):
                         writer.write(rule(chunk, index))
             return writer.count
-    per_file = distributed.PIECES_PER_WORKER * distributed.worker_count(client)
-    with scratch_folder(out, scratch) as folder:
+    with scratch_folder(out, job.scratch) as folder:
         calls = []
-        for source, options in sources:
-            for start, stop in distributed.piece_ranges(source.count, per_file if len(sources) == 1 else 1, source.aligned):
+        for source in job.sources:
+            # One file is cut into pieces for the workers; many files are a task each.
+            ranges = job.pieces(source) if len(job.sources) == 1 else distributed.piece_ranges(source.count, 1)
+            for start, stop in ranges:
                 spill = str(folder / f"piece-{len(calls):06d}.spill")
-                calls.append((str(source.path), options, start, stop, points, rule, spill))
-        with progress_bar(len(calls), f"{what} (pieces)", progress, "piece") as bar:
-            distributed.run_tasks(client, distributed.select_task, calls, bar)
-        template = rule(first, np.zeros(0, np.int64))
+                calls.append((str(source.path), job.options, start, stop, job.points, rule, spill))
+        with progress_bar(len(calls), f"{what} (pieces)", job.progress, "piece") as bar:
+            distributed.run_tasks(job.client, select_task, calls, bar)
         with open_writer(out, encoding, bounds=bounds) as writer:
             writer.write(template)
             for call in calls:
-                for chunk, _ in Spill(call[-1], template).chunks(points):
+                for chunk, _ in Spill(call[-1], template).chunks(job.points):
                     writer.write(chunk)
             return writer.count
+
+
+def select_task(path: str, options: dict[str, Any], start: int, stop: int, points: int, rule: Rule,
+                spill_path: str) -> int:
+    """Apply ``rule`` to each chunk of a piece, appending what it keeps to a spill."""
+    source = open_source(path, **options)
+    spill = None
+    for chunk, index in indexed_chunks(source, points, start, stop):
+        kept = rule(chunk, index)
+        if spill is None:
+            spill = Spill(spill_path, kept)
+        spill.append(kept)
+    return 0 if spill is None else len(spill)

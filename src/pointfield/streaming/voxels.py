@@ -85,17 +85,6 @@ class VoxelGrid:
         _, ny, nz = self.shape
         return (cells[:, 0] * ny + cells[:, 1]) * nz + cells[:, 2]
 
-    def cells_of(self, keys: np.ndarray) -> np.ndarray:
-        _, ny, nz = self.shape
-        cells = np.empty((len(keys), 3), np.int64)
-        cells[:, 0], rest = np.divmod(keys, ny * nz)
-        cells[:, 1], cells[:, 2] = np.divmod(rest, nz)
-        return cells
-
-    def holds(self, cells: np.ndarray) -> bool:
-        """True when every cell lies inside the grid (a stale header can make one fall out)."""
-        return bool(len(cells) == 0 or (cells.min() >= 0 and np.all(cells.max(axis=0) < self.shape)))
-
     def centres(self, cells: np.ndarray) -> np.ndarray:
         return self.origin + (cells + 0.5) * self.size
 
@@ -397,7 +386,8 @@ class VoxelAccumulator:
 # The bounded-memory driver
 
 
-def _finite(cloud: PointCloud, index: np.ndarray) -> tuple[PointCloud, np.ndarray]:
+def drop_nonfinite(cloud: PointCloud, index: np.ndarray) -> tuple[PointCloud, np.ndarray]:
+    """``cloud`` and ``index`` without the points that have a NaN or infinite coordinate."""
     finite = finite_rows(cloud.points)
     if finite is None:
         return cloud, index
@@ -449,7 +439,7 @@ def reduce_voxels(
     seen = 0
     for cloud, index in chunks:
         seen += len(cloud)
-        cloud, index = _finite(cloud, index)
+        cloud, index = drop_nonfinite(cloud, index)
         if len(cloud) == 0:
             continue
         cells = grid.cells(np.asarray(cloud.points, np.float64))

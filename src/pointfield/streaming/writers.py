@@ -11,7 +11,9 @@ block ends without an exception; an exception (a killed job's KeyboardInterrupt 
 removes it, and ``path`` is left as it was. The bytes are those :func:`pointfield.write` would
 write for the concatenated chunks, by the format's own writer code: each writer takes the
 layout (fields, types, LAS point format and extra dimensions) from the first chunk and holds
-every later chunk to it.
+every later chunk to it. One exception: a LAS / LAZ file of more than
+:attr:`LasChunkWriter.WINDOW` points with extra dimensions, whose extra-bytes min / max (laspy's
+statistics, which depend on how points are split between its calls) can differ.
 
 ===========================  ================================================================
 format                       how it streams
@@ -50,6 +52,7 @@ from pointfield.clouds.formats.las.dimensions import (
     choose_point_format,
     extra_dimensions,
     fit,
+    las_field_names,
     split_fields,
     version_for,
 )
@@ -414,7 +417,7 @@ class LasChunkWriter(ChunkWriter):
     def _open(self, template: PointCloud, bounds: Bounds) -> None:
         metadata = template.metadata
         notes: list[str] = []
-        standard, extra = split_fields(template.fields, notes)
+        standard, extra = split_fields(las_field_names(template.fields, notes), notes)
         self.format_id = choose_point_format(standard, metadata)
         self.dimensions = FORMATS[self.format_id]
         extra_params, _ = extra_dimensions(
@@ -450,7 +453,7 @@ class LasChunkWriter(ChunkWriter):
                 "the LAS scales and offsets chosen from them",
             )
         notes: list[str] = []
-        standard, extra = split_fields(cloud.fields, notes)
+        standard, extra = split_fields(las_field_names(cloud.fields, notes), notes)
         extra = self._extra(standard, extra)
         standard = {
             name: fit(name, values, self.dimensions[name], notes) for name, values in standard.items()

@@ -25,14 +25,7 @@ from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats import formats
 from pointfield.errors import PointfieldError
 from pointfield.streaming import distributed
-from pointfield.streaming.chunks import ChunkSource, open_source
-from pointfield.streaming.jobs import (
-    bytes_per_point,
-    output_done,
-    progress_bar,
-    summary,
-    template_of,
-)
+from pointfield.streaming.jobs import output_done, progress_bar, streaming_job, summary
 from pointfield.streaming.memory import DEFAULT_MEMORY, plan
 from pointfield.streaming.select import keep_all, select_to_file
 
@@ -96,21 +89,18 @@ def merge(
     """
     if not sources:
         raise PointfieldError("merge needs at least one input")
+    names = [str(s) for s in sources]
     if output_done(out, overwrite):
-        return summary(sources=[str(s) for s in sources], out=out, skipped=True)
-    options = {"columns": columns} if columns is not None else {}
-    opened: list[tuple[ChunkSource, dict[str, Any]]] = [(open_source(s, **options), options) for s in sources]
-    templates = [template_of(src) for src, _ in opened]
-    points_dtype, fields, dropped = common_layout(templates)
-    if dropped:
-        warnings.warn(f"fields not in every input are left out of the merge: {', '.join(dropped)}", stacklevel=2)
-    rule = keep_all if len(opened) == 1 else partial(conform, points_dtype, fields)
-    budget = plan(memory, max(bytes_per_point(t) for t in templates), points)
-    with distributed.cluster(workers, scheduler, client) as dask_client:
-        written = select_to_file(opened, Path(out), rule, encoding, budget.chunk_points, dask_client,
-                                 scratch, progress, what)
-    return summary(sources=[str(s) for s in sources], out=out,
-                   input_points=sum(src.count for src, _ in opened), output_points=written, skipped=False)
+        return summary(sources=names, out=out, skipped=True)
+    with streaming_job(sources, columns=columns, memory=memory, points=points, workers=workers,
+                       scheduler=scheduler, client=client, scratch=scratch, progress=progress) as job:
+        points_dtype, fields, dropped = common_layout(job.templates)
+        if dropped:
+            warnings.warn(f"fields not in every input are left out of the merge: {', '.join(dropped)}", stacklevel=2)
+        rule = keep_all if len(sources) == 1 else partial(conform, points_dtype, fields)
+        written = select_to_file(job, Path(out), rule, encoding, what)
+    return summary(sources=names, out=out, input_points=sum(s.count for s in job.sources),
+                   output_points=written, skipped=False)
 
 
 def convert(source: str | os.PathLike[str], out: str | os.PathLike[str], **options: Any) -> dict[str, Any]:
@@ -170,6 +160,7 @@ def convert_folder(
         raise PointfieldError(f"{folder}: not a folder")
     suffix = suffix if suffix is None or suffix.startswith(".") else f".{suffix}"
     inputs = cloud_files(folder, pattern)
+    chunk_points = points or plan(memory, 64).chunk_points
     jobs = []
     skipped = 0
     targets: dict[Path, Path] = {}
@@ -185,16 +176,10 @@ def convert_folder(
         if target.exists() and not overwrite:
             skipped += 1
             continue
-        jobs.append((str(path), str(target), encoding, points or plan(memory, 64).chunk_points, columns, overwrite))
+        jobs.append((str(path), str(target), encoding, chunk_points, columns, overwrite))
     with distributed.cluster(workers, scheduler, client) as dask_client, \
             progress_bar(len(jobs), f"convert {folder.name}", progress, "file") as bar:
-        if dask_client is None:
-            results = []
-            for job in jobs:
-                results.append(convert_task(*job))
-                bar.update(1)
-        else:
-            results = distributed.run_tasks(dask_client, convert_task, jobs, bar)
+        results = distributed.run_tasks(dask_client, convert_task, jobs, bar)
     failed = [r for r in results if "error" in r]
     if failed:
         raise PointfieldError(

@@ -22,10 +22,8 @@ import numpy as np
 
 from pointfield.clouds.cloud import PointCloud
 from pointfield.errors import PointfieldError
-from pointfield.streaming import distributed
-from pointfield.streaming.chunks import open_source
-from pointfield.streaming.jobs import bytes_per_point, output_done, summary, template_of
-from pointfield.streaming.memory import DEFAULT_MEMORY, plan
+from pointfield.streaming.jobs import output_done, streaming_job, summary
+from pointfield.streaming.memory import DEFAULT_MEMORY
 from pointfield.streaming.select import select_to_file
 
 
@@ -139,11 +137,7 @@ def crop(
     area_box, rings = _area(box, polygon)
     if output_done(out, overwrite):
         return summary(source=source, out=out, skipped=True)
-    options = {"columns": columns} if columns is not None else {}
-    src = open_source(source, **options)
-    budget = plan(memory, bytes_per_point(template_of(src)), points)
-    rule = partial(keep_inside, area_box, rings)
-    with distributed.cluster(workers, scheduler, client) as dask_client:
-        written = select_to_file([(src, options)], Path(out), rule, encoding, budget.chunk_points,
-                                 dask_client, scratch, progress, "crop")
-    return summary(source=source, out=out, input_points=src.count, output_points=written, skipped=False)
+    with streaming_job([source], columns=columns, memory=memory, points=points, workers=workers,
+                       scheduler=scheduler, client=client, scratch=scratch, progress=progress) as job:
+        written = select_to_file(job, Path(out), partial(keep_inside, area_box, rings), encoding, "crop")
+    return summary(source=source, out=out, input_points=job.source.count, output_points=written, skipped=False)

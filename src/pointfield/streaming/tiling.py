@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -29,14 +30,14 @@ from pointfield.streaming import distributed
 from pointfield.streaming.arrays import finite_corners
 from pointfield.streaming.chunks import open_source
 from pointfield.streaming.jobs import (
-    bytes_per_point,
+    Job,
     indexed_chunks,
     progress_bar,
     scratch_folder,
+    streaming_job,
     summary,
-    template_of,
 )
-from pointfield.streaming.memory import DEFAULT_MEMORY, plan
+from pointfield.streaming.memory import DEFAULT_MEMORY
 from pointfield.streaming.spill import Spill
 from pointfield.streaming.writers import open_writer
 
@@ -65,13 +66,19 @@ def tile_memberships(points: np.ndarray, size: float, buffer: float, origin: np.
     return pairs
 
 
-def tile_cloud(cloud: PointCloud, size: float, buffer: float = 0.0, origin: Any = (0.0, 0.0)) -> dict[tuple[int, int], PointCloud]:
-    """In memory: tile ``(i, j)`` -> its points, in file order (module docstring)."""
+def tile_rows(points: np.ndarray, size: float, buffer: float, origin: np.ndarray) -> dict[tuple[int, int], np.ndarray]:
+    """Tile ``(i, j)`` -> the rows of ``points`` it holds, in increasing order."""
     rows_of: dict[tuple[int, int], list[np.ndarray]] = {}
-    for tiles, rows in tile_memberships(cloud.points, size, buffer, np.asarray(origin, np.float64)):
+    for tiles, rows in tile_memberships(points, size, buffer, origin):
         for key, group in _group(tiles, rows):
             rows_of.setdefault(key, []).append(group)
-    return {key: cloud.select(np.sort(np.concatenate(groups))) for key, groups in sorted(rows_of.items())}
+    return {key: np.sort(np.concatenate(groups)) for key, groups in rows_of.items()}
+
+
+def tile_cloud(cloud: PointCloud, size: float, buffer: float = 0.0, origin: Any = (0.0, 0.0)) -> dict[tuple[int, int], PointCloud]:
+    """In memory: tile ``(i, j)`` -> its points, in file order (module docstring)."""
+    tiles = tile_rows(cloud.points, size, buffer, np.asarray(origin, np.float64))
+    return {key: cloud.select(rows) for key, rows in sorted(tiles.items())}
 
 
 def _group(tiles: np.ndarray, rows: np.ndarray) -> list[tuple[tuple[int, int], np.ndarray]]:
@@ -97,12 +104,8 @@ class _TileSpills:
         self.bounds: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
     def add(self, chunk: PointCloud, size: float, buffer: float, origin: np.ndarray) -> None:
-        pieces: dict[tuple[int, int], list[np.ndarray]] = {}
-        for tiles, rows in tile_memberships(chunk.points, size, buffer, origin):
-            for key, group in _group(tiles, rows):
-                pieces.setdefault(key, []).append(group)
-        for key, groups in pieces.items():
-            part = chunk.select(np.sort(np.concatenate(groups)))
+        for key, rows in tile_rows(chunk.points, size, buffer, origin).items():
+            part = chunk.select(rows)
             if key not in self.spills:
                 name = f"tile_{key[0]}_{key[1]}"
                 path = self.folder / f"{name}.spill"
@@ -155,33 +158,56 @@ def tile(
     if not overwrite and manifest.exists():
         done = json.loads(manifest.read_text())
         if done.get("settings") == settings and all((outdir / t["file"]).exists() for t in done["tiles"]):
-            print(f"pointfield: {manifest} lists a finished tiling; skipped — pass --overwrite to redo it")
+            print(f"pointfield: {manifest} lists a finished tiling; skipped — pass --overwrite to redo it",
+                  file=sys.stderr)
             return summary(source=source, out=outdir, skipped=True, tiles=done["tiles"])
-    options = {"columns": columns} if columns is not None else {}
-    src = open_source(source, **options)
-    template = template_of(src)
-    budget = plan(memory, bytes_per_point(template), points)
-    outdir.mkdir(parents=True, exist_ok=True)
-    with scratch_folder(outdir, scratch) as folder, distributed.cluster(workers, scheduler, client) as dask_client:
-        if dask_client is None:
-            spills = _TileSpills(folder)
-            with progress_bar(src.count, f"tile {source.name}", progress) as bar:
-                for chunk, _ in indexed_chunks(src, budget.chunk_points, bar=bar):
-                    spills.add(chunk, size, buffer, origin)
-            tiles = []
-            with progress_bar(len(spills.spills), "write tiles", progress, "tile") as bar:
-                for key in sorted(spills.spills):
-                    name = tile_name(source.stem, key, suffix)
-                    count = write_tile([spills.spills[key].path], template, outdir / name, encoding,
-                                       spills.bounds.get(key), budget.chunk_points, overwrite)
-                    tiles.append({"file": name, "tile": list(key), "points": count})
-                    bar.update(1)
-        else:
-            tiles = _tile_on_dask(src, options, template, source, outdir, size, buffer, origin, suffix,
-                                  encoding, budget, dask_client, folder, overwrite, progress)
+    with streaming_job([source], columns=columns, memory=memory, points=points, workers=workers,
+                       scheduler=scheduler, client=client, scratch=scratch, progress=progress) as job:
+        outdir.mkdir(parents=True, exist_ok=True)
+        with scratch_folder(outdir, job.scratch) as folder:
+            if job.client is None:
+                spilled = _spill_tiles(job, size, buffer, origin, folder)
+            else:
+                spilled = _spill_tiles_on_dask(job, size, buffer, origin, folder)
+            keys = sorted(spilled)
+            names = [tile_name(source.stem, key, suffix) for key in keys]
+            writes = [(spilled[key][0], job.template, outdir / name, encoding, spilled[key][1], job.points, overwrite)
+                      for key, name in zip(keys, names, strict=True)]
+            with progress_bar(len(writes), "write tiles", job.progress, "tile") as bar:
+                counts = distributed.run_tasks(job.client, write_tile, writes, bar)
+    tiles = [{"file": name, "tile": list(key), "points": count} for key, name, count in zip(keys, names, counts, strict=True)]
     with atomic_path(manifest) as tmp:
         tmp.write_text(json.dumps({"settings": settings, "tiles": tiles}, indent=2) + "\n")
-    return summary(source=source, out=outdir, input_points=src.count, tiles=tiles, skipped=False)
+    return summary(source=source, out=outdir, input_points=job.source.count, tiles=tiles, skipped=False)
+
+
+Spilled = dict[tuple[int, int], tuple[list[Path], tuple[np.ndarray, np.ndarray] | None]]
+
+
+def _spill_tiles(job: Job, size: float, buffer: float, origin: np.ndarray, folder: Path) -> Spilled:
+    """Sort the points into a spill per tile: tile -> (its spills, bounds of its finite points)."""
+    spills = _TileSpills(folder)
+    with progress_bar(job.source.count, f"tile {job.source.path.name}", job.progress) as bar:
+        for chunk, _ in indexed_chunks(job.source, job.points, bar=bar):
+            spills.add(chunk, size, buffer, origin)
+    return {key: ([spill.path], spills.bounds.get(key)) for key, spill in spills.spills.items()}
+
+
+def _spill_tiles_on_dask(job: Job, size: float, buffer: float, origin: np.ndarray, folder: Path) -> Spilled:
+    """:func:`_spill_tiles`, a task per piece of the file: a spill per tile and piece."""
+    src = job.source
+    calls = [(str(src.path), job.options, a, b, job.points, size, buffer, origin, str(folder), n)
+             for n, (a, b) in enumerate(job.pieces(src))]
+    with progress_bar(len(calls), f"tile {src.path.name} (pieces)", job.progress, "piece") as bar:
+        results = distributed.run_tasks(job.client, tile_scatter_task, calls, bar)
+    tiles: dict[tuple[int, int], list[Any]] = {}
+    for found in results:  # in piece order, so each tile's spills are in file order
+        for key, (path, low, high) in found.items():
+            entry = tiles.setdefault(key, [[], np.full(3, np.inf), np.full(3, -np.inf)])
+            entry[0].append(Path(path))
+            if low is not None:
+                entry[1], entry[2] = np.minimum(entry[1], low), np.maximum(entry[2], high)
+    return {key: (paths, (low, high) if np.all(low <= high) else None) for key, (paths, low, high) in tiles.items()}
 
 
 def write_tile(spill_paths: list[str | Path], template: PointCloud, path: Path, encoding: str | None,
@@ -203,36 +229,9 @@ def write_tile(spill_paths: list[str | Path], template: PointCloud, path: Path, 
 
 def tile_scatter_task(path: str, options: dict[str, Any], start: int, stop: int, points: int, size: float,
                       buffer: float, origin: np.ndarray, folder: str, piece: int) -> dict[tuple[int, int], Any]:
-    """Sort a piece's points into per-tile spills; ``{tile: (points, min, max)}``."""
+    """Sort a piece's points into per-tile spills; ``{tile: (spill path, min, max)}``."""
     source = open_source(path, **options)
     spills = _TileSpills(Path(folder), piece)
     for chunk, _ in indexed_chunks(source, points, start, stop):
         spills.add(chunk, size, buffer, origin)
-    return {key: (len(s), *spills.bounds.get(key, (None, None))) for key, s in spills.spills.items()}
-
-
-def _tile_on_dask(src, options, template, source, outdir, size, buffer, origin, suffix, encoding, budget,
-                  client, folder, overwrite, progress) -> list[dict[str, Any]]:
-    pieces = distributed.piece_ranges(src.count, distributed.PIECES_PER_WORKER * distributed.worker_count(client), src.aligned)
-    calls = [(str(source), options, a, b, budget.chunk_points, size, buffer, origin, str(folder), n)
-             for n, (a, b) in enumerate(pieces)]
-    with progress_bar(len(calls), f"tile {source.name} (pieces)", progress, "piece") as bar:
-        results = distributed.run_tasks(client, tile_scatter_task, calls, bar)
-    tiles: dict[tuple[int, int], list[Any]] = {}
-    for piece, found in enumerate(results):
-        for key, (count, low, high) in found.items():
-            entry = tiles.setdefault(key, [[], np.full(3, np.inf), np.full(3, -np.inf)])
-            entry[0].append(folder / f"tile_{key[0]}_{key[1]}" / f"piece-{piece:06d}.spill")
-            if low is not None:
-                entry[1], entry[2] = np.minimum(entry[1], low), np.maximum(entry[2], high)
-    keys = sorted(tiles)
-    writes = []
-    for key in keys:
-        paths, low, high = tiles[key]
-        bounds = (low, high) if np.all(low <= high) else None
-        writes.append((paths, template, outdir / tile_name(source.stem, key, suffix), encoding, bounds,
-                       budget.chunk_points, overwrite))
-    with progress_bar(len(writes), "write tiles", progress, "tile") as bar:
-        counts = distributed.run_tasks(client, write_tile, writes, bar)
-    return [{"file": tile_name(source.stem, key, suffix), "tile": list(key), "points": count}
-            for key, count in zip(keys, counts, strict=True)]
+    return {key: (str(s.path), *spills.bounds.get(key, (None, None))) for key, s in spills.spills.items()}

@@ -20,13 +20,8 @@ from pointfield.clouds.cloud import PointCloud
 from pointfield.streaming import distributed
 from pointfield.streaming.arrays import finite_corners
 from pointfield.streaming.chunks import open_source
-from pointfield.streaming.jobs import (
-    bytes_per_point,
-    indexed_chunks,
-    progress_bar,
-    template_of,
-)
-from pointfield.streaming.memory import DEFAULT_MEMORY, plan
+from pointfield.streaming.jobs import indexed_chunks, progress_bar, streaming_job
+from pointfield.streaming.memory import DEFAULT_MEMORY
 
 CLASS_FIELDS = ("classification", "label", "labels", "semantic")
 
@@ -127,21 +122,18 @@ def stats(
     Also ``path``, ``format``, ``encoding``, ``fields`` (name -> dtype), ``field_components``
     and ``class_field``, as ``cloud info`` reports them.
     """
-    options = {"columns": columns} if columns is not None else {}
-    source = open_source(path, **options)
-    template = template_of(source)
-    budget = plan(memory, bytes_per_point(template), points)
-    with distributed.cluster(workers, scheduler, client) as dask_client:
-        if dask_client is None:
+    with streaming_job([path], columns=columns, memory=memory, points=points, workers=workers,
+                       scheduler=scheduler, client=client, progress=progress) as job:
+        source, template = job.source, job.template
+        if job.client is None:
             total = Stats()
             with progress_bar(source.count, f"stats {source.path.name}", progress) as bar:
-                for chunk, _ in indexed_chunks(source, budget.chunk_points, bar=bar):
+                for chunk, _ in indexed_chunks(source, job.points, bar=bar):
                     total.add(chunk)
         else:
-            pieces = distributed.piece_ranges(source.count, distributed.PIECES_PER_WORKER * distributed.worker_count(dask_client), source.aligned)
-            calls = [(str(source.path), options, a, b, budget.chunk_points) for a, b in pieces]
+            calls = [(str(source.path), job.options, a, b, job.points) for a, b in job.pieces(source)]
             with progress_bar(len(calls), f"stats {source.path.name}", progress, "piece") as bar:
-                parts = distributed.run_tasks(dask_client, stats_task, calls, bar)
+                parts = distributed.run_tasks(job.client, stats_task, calls, bar)
             total = sum(parts, Stats())
     return {
         "path": str(path),
