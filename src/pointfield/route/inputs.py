@@ -72,11 +72,6 @@ FULL_READ_LIMIT = 64 << 20
 ESTIMATE_BYTES = 1 << 20
 """Bytes of a larger headerless file whose lines estimate its number of points."""
 
-SPLAT_PROPERTIES = frozenset(
-    {"f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"}
-)
-"""The vertex properties that make a ``.ply`` a Gaussian-splat file (:mod:`pointfield.splats.ply`)."""
-
 RUN_SCORES = ("psnr", "ssim", "accuracy", "miou", "steps", "epochs")
 """What a run's ``metrics.json`` holds that the router reports."""
 
@@ -184,7 +179,7 @@ def _ply(path: Path) -> dict[str, Any]:
                                "faces": faces, "organised": None, "fields": names, "read": "header"}
     if not {"x", "y", "z"} <= set(names):
         details["kind"] = "records"
-    elif SPLAT_PROPERTIES <= set(names):
+    elif set(ply_header.SPLAT_PROPERTIES) <= set(names):
         rest = sum(name.startswith("f_rest_") for name in names)
         details.update(kind="splats", sh_degree=round(math.sqrt(rest // 3 + 1)) - 1)
     else:

@@ -29,6 +29,7 @@ import torch
 from pointfield.clouds import read as read_cloud
 from pointfield.clouds import write as write_cloud
 from pointfield.clouds.cloud import PointCloud
+from pointfield.clouds.formats.ply import SPLAT_PROPERTIES
 from pointfield.errors import FormatError
 from pointfield.splats.gaussians import Gaussians
 
@@ -42,8 +43,7 @@ def read_splats(path: str | os.PathLike[str], dtype: torch.dtype = torch.float32
     fields = cloud.fields
     count = len(cloud.points)
     rest_names = sorted((name for name in fields if name.startswith("f_rest_")), key=lambda n: int(n[7:]) if n[7:].isdigit() else -1)
-    required = ["f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
-                "rot_0", "rot_1", "rot_2", "rot_3"]
+    required = list(SPLAT_PROPERTIES)
     missing = [name for name in required if name not in fields]
     if missing:
         raise FormatError(path, f"not a splat file: vertex properties {', '.join(missing)} are missing "

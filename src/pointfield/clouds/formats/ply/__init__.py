@@ -51,12 +51,17 @@ The package reads like the format: ``header`` (the header's grammar and types), 
 data section and how it maps onto pointfield objects), ``writer``.
 """
 
-from pointfield.clouds.formats.ply.header import ENCODINGS, is_ply, parse_header
+from pointfield.clouds.formats.ply.header import (
+    ENCODINGS,
+    SPLAT_PROPERTIES,
+    is_ply,
+    parse_header,
+)
 from pointfield.clouds.formats.ply.reader import read_ply
 from pointfield.clouds.formats.ply.writer import write_ply
 from pointfield.clouds.formats.registry import Format, register
 
-__all__ = ["ENCODINGS", "is_ply", "parse_header", "read_ply", "write_ply"]
+__all__ = ["ENCODINGS", "SPLAT_PROPERTIES", "is_ply", "parse_header", "read_ply", "write_ply"]
 
 register(
     Format(

@@ -13,6 +13,11 @@ import numpy as np
 
 from pointfield.errors import FormatError
 
+SPLAT_PROPERTIES = ("f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
+                    "rot_0", "rot_1", "rot_2", "rot_3")
+"""The vertex properties every 3D Gaussian-splat ``.ply`` has (besides x y z and ``f_rest_*``):
+what tells a splat file from a point cloud (the layout is in :mod:`pointfield.splats.ply`)."""
+
 ENCODINGS = ("binary_little_endian", "ascii", "binary_big_endian")
 BYTE_ORDERS = {"binary_little_endian": "<", "binary_big_endian": ">"}
 
