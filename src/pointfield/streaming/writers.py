@@ -48,12 +48,6 @@ from pointfield.atomic import atomic_path
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats import format_of, write
 from pointfield.clouds.formats.las.dimensions import (
-    FORMATS,
-    choose_point_format,
-    extra_dimensions,
-    fit,
-    las_field_names,
-    split_fields,
     version_for,
 )
 from pointfield.clouds.formats.las.library import library_errors
@@ -62,6 +56,7 @@ from pointfield.clouds.formats.las.writer import (
     _in_int32,
     _records,
     _scales_and_offsets,
+    las_dimensions,
 )
 from pointfield.clouds.formats.npy import write_npy
 from pointfield.clouds.formats.pcd.header import BANNER
@@ -416,13 +411,8 @@ class LasChunkWriter(ChunkWriter):
 
     def _open(self, template: PointCloud, bounds: Bounds) -> None:
         metadata = template.metadata
-        notes: list[str] = []
-        standard, extra = split_fields(las_field_names(template.fields, notes), notes)
-        self.format_id = choose_point_format(standard, metadata)
-        self.dimensions = FORMATS[self.format_id]
-        extra_params, _ = extra_dimensions(
-            self._extra(standard, extra), set(self.dimensions), metadata, notes
-        )
+        # The header's layout; what the fields lose is warned about as each window is written.
+        self.format_id, _, extra_params, _ = las_dimensions(template.fields, metadata, [])
         header = laspy.LasHeader(
             point_format=laspy.PointFormat(self.format_id),
             version=version_for(self.format_id, metadata),
@@ -439,12 +429,6 @@ class LasChunkWriter(ChunkWriter):
             self.writer = laspy.LasWriter(self.file, header, do_compress=self.encoding == "laz", closefd=False)
         self.header = header
 
-    def _extra(self, standard: dict[str, np.ndarray], extra: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        for name in list(standard):
-            if name not in self.dimensions:
-                extra[name] = standard.pop(name)
-        return extra
-
     def _write_points(self, cloud: PointCloud) -> None:
         if len(cloud) and not _in_int32(*corners(cloud.points), self.header.scales, self.header.offsets):
             raise FormatError(
@@ -453,12 +437,7 @@ class LasChunkWriter(ChunkWriter):
                 "the LAS scales and offsets chosen from them",
             )
         notes: list[str] = []
-        standard, extra = split_fields(las_field_names(cloud.fields, notes), notes)
-        extra = self._extra(standard, extra)
-        standard = {
-            name: fit(name, values, self.dimensions[name], notes) for name, values in standard.items()
-        }
-        _, extra_values = extra_dimensions(extra, set(self.dimensions), cloud.metadata, notes)
+        _, standard, _, extra_values = las_dimensions(cloud.fields, cloud.metadata, notes, self.format_id)
         if notes:
             warnings.warn("LAS changes these fields: " + "; ".join(notes), stacklevel=2)
         with library_errors(self.path, "laspy could not write it"):

@@ -40,17 +40,7 @@ def write_las(path: Path, cloud: PointCloud, encoding: str | None = None) -> Non
     metadata = cloud.metadata
     notes: list[str] = []
     points, fields = _finite_points(cloud)
-
-    standard, extra = split_fields(las_field_names(fields, notes), notes)
-    format_id = choose_point_format(standard, metadata)
-    dimensions = FORMATS[format_id]
-    for name in list(standard):
-        if name not in dimensions:
-            extra[name] = standard.pop(name)
-    standard = {
-        name: fit(name, values, dimensions[name], notes) for name, values in standard.items()
-    }
-    extra_params, extra_values = extra_dimensions(extra, set(dimensions), metadata, notes)
+    format_id, standard, extra_params, extra_values = las_dimensions(fields, metadata, notes)
     if notes:
         warnings.warn("LAS changes these fields: " + "; ".join(notes), stacklevel=3)
 
@@ -70,6 +60,28 @@ def write_las(path: Path, cloud: PointCloud, encoding: str | None = None) -> Non
             writer.write_points(records)
             if evlrs:
                 writer.write_evlrs(evlrs)
+
+
+def las_dimensions(
+    fields: Mapping[str, np.ndarray], metadata: Mapping[str, Any], notes: list[str], format_id: int | None = None
+) -> tuple[int, dict[str, np.ndarray], list, dict[str, np.ndarray]]:
+    """Fields as LAS stores them: ``(point format, standard dimensions fitted to their types,
+    extra-bytes parameters, extra-bytes values)``; what had to change is appended to ``notes``.
+
+    Names are mapped and sanitised (:func:`las_field_names`); the point format is the smallest
+    that holds the standard dimensions, unless ``format_id`` is given (a chunked writer keeps
+    the one its header was opened with); standard names the format lacks become extra bytes.
+    """
+    standard, extra = split_fields(las_field_names(fields, notes), notes)
+    if format_id is None:
+        format_id = choose_point_format(standard, metadata)
+    dimensions = FORMATS[format_id]
+    for name in list(standard):
+        if name not in dimensions:
+            extra[name] = standard.pop(name)
+    standard = {name: fit(name, values, dimensions[name], notes) for name, values in standard.items()}
+    extra_params, extra_values = extra_dimensions(extra, set(dimensions), metadata, notes)
+    return format_id, standard, extra_params, extra_values
 
 
 def _finite_points(cloud: PointCloud) -> tuple[np.ndarray, dict[str, np.ndarray]]:
