@@ -1,8 +1,9 @@
 """The viewer in a real browser: each kind of PATH reaches the page, and the page draws it.
 
 Each test serves something, opens the page in headless Chromium, waits for the tab to connect,
-checks the scene's nodes on the server, and takes a screenshot whose 3D canvas must show the
-object -- enough pixels unlike the background, left of the panel (an empty canvas has none).
+checks the scene's nodes on the server, and takes screenshots until the 3D canvas shows the
+object -- enough pixels unlike the background, left of the panel. An empty canvas has none; a
+cloud's bounding box and axes alone have about 6,000, so the cloud test hides them first.
 """
 
 from __future__ import annotations
@@ -16,8 +17,6 @@ import viser
 
 from pointfield.viewer.browser import (
     SCENE_REGION,
-    crop,
-    object_pixels,
     wait_for,
     wait_for_picture,
 )
@@ -42,13 +41,17 @@ def connected(viewer, timeout: float = 60.0) -> viser.ClientHandle:
     return wait_for(client, timeout, "a browser tab connecting")
 
 
-def shows_object(page) -> int:
-    image = wait_for_picture(page, OBJECT_PIXELS, timeout=60, region=SCENE_REGION)
-    return object_pixels(crop(image, SCENE_REGION))
+def shows_object(page) -> bool:
+    """Whether the canvas, left of the panel, shows at least :data:`OBJECT_PIXELS` within a minute."""
+    try:
+        wait_for_picture(page, OBJECT_PIXELS, timeout=60, region=SCENE_REGION)
+    except TimeoutError:
+        return False
+    return True
 
 
 def test_a_cloud_file_is_drawn_in_the_browser(served, page_of, cloud_file):
-    viewer, _ = served([cloud_file])
+    viewer, [view] = served([cloud_file])
     page = page_of(viewer)
     connected(viewer)
     points = viewer.server.scene.get_handle_by_name("/bumps/points")
@@ -56,7 +59,9 @@ def test_a_cloud_file_is_drawn_in_the_browser(served, page_of, cloud_file):
     assert points.points.shape == (20_000, 3)
     assert np.abs(points.points).max() < 20  # recentred: the file's coordinates are near 4,200,000
     assert viewer.server.scene.get_handle_by_name("/bumps/box") is not None
-    assert shows_object(page) >= OBJECT_PIXELS
+    view.show_box.value = view.show_axes.value = False  # what is left to draw is the points
+    assert not view.nodes["box"].visible and not view.nodes["axes"].visible
+    assert shows_object(page)
     text = page.inner_text("body")
     assert "showing all 20,000 points" in text
     assert "relative to (500,010.00, 4,200,010.00, 100.00)" in text
@@ -68,7 +73,7 @@ def test_a_scene_folder_shows_every_camera(served, page_of, scene_folder):
     connected(viewer)
     frustums = [viewer.server.scene.get_handle_by_name(f"/cube/cameras/{i:04d}") for i in range(12)]
     assert all(isinstance(f, viser.CameraFrustumHandle) for f in frustums)
-    assert shows_object(page) >= OBJECT_PIXELS
+    assert shows_object(page)
     wait_for(lambda: all(f.image is not None for f in frustums) or None, 30, "every thumbnail")
 
 
@@ -77,7 +82,7 @@ def test_a_splat_file_is_drawn_as_gaussians(served, page_of, splat_file):
     page = page_of(viewer)
     connected(viewer)
     assert isinstance(viewer.server.scene.get_handle_by_name("/box/splats"), viser.GaussianSplatHandle)
-    assert shows_object(page) >= OBJECT_PIXELS
+    assert shows_object(page)
 
 
 def test_an_ngp_run_is_rendered_on_the_server_and_follows_the_camera(served, page_of, ngp_run):
@@ -86,7 +91,7 @@ def test_an_ngp_run_is_rendered_on_the_server_and_follows_the_camera(served, pag
     client = connected(viewer)
     renderer = run.renderer
     wait_for(lambda: any(not f.moving for f in renderer.frames()) or None, 60, "a full-size frame")
-    assert shows_object(page) >= OBJECT_PIXELS
+    assert shows_object(page)
     before = len(renderer.frames())
     client.camera.position = tuple(np.asarray(client.camera.position) * 1.3)  # the test moves the camera
     wait_for(lambda: len(renderer.frames()) > before or None, 60, "a frame of the moved camera")
@@ -119,7 +124,7 @@ def test_training_is_watched_live_and_pauses_from_the_page(page_of, tmp_path):
         assert not training.is_alive()
         # The page gets the last step's text a moment after training ends: wait for it, not for a clock.
         wait_for(lambda: "step 60" in page.inner_text("body") or None, 30, "the page to show step 60")
-        assert shows_object(page) >= OBJECT_PIXELS
+        assert shows_object(page)
     finally:
         viewer.close()
 

@@ -7,6 +7,7 @@ on the run; see them for what each option does.
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 
@@ -66,4 +67,4 @@ def export_geometry_of(args: argparse.Namespace) -> None:
 def opacity_error_text(metrics: dict) -> str:
     """``"opacity error 0.0123, "`` for a run scored against alpha, else nothing."""
     error = metrics.get("opacity_error")
-    return f"opacity error {error:.4f}, " if error is not None and error == error else ""
+    return f"opacity error {error:.4f}, " if error is not None and not math.isnan(error) else ""

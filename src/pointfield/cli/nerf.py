@@ -17,7 +17,7 @@ from pointfield.cli.geometry_options import (
     export_geometry_of,
     opacity_error_text,
 )
-from pointfield.cli.view import add_view_options, finish_training_view, training_view
+from pointfield.cli.view import add_view_options, training_view
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
 
@@ -125,17 +125,16 @@ def run_train(args: argparse.Namespace) -> int:
     background = args.background
     if background is not None and "," in background:
         background = [float(value) for value in background.split(",")]
-    view = training_view(args)
-    metrics = train(
-        args.scene, model=args.model, out=args.out, steps=args.steps, max_time=args.max_time,
-        batch_rays=args.batch_rays, downscale=args.downscale, holdout_every=args.holdout_every,
-        background=background, random_background=args.random_background, alpha_loss=args.alpha_loss, device=args.device, seed=args.seed, resume=args.resume,
-        eval_every=args.eval_every, learning_rate=args.learning_rate, progress=args.progress,
-        scene_box=[float(v) for v in args.scene_box.split(",")] if "," in args.scene_box else args.scene_box,
-    )
-    print(f"nerf run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
-          f"{opacity_error_text(metrics)}({metrics['steps']} steps, {metrics['seconds']:.0f} s); see {args.out / 'metrics.json'}")
-    finish_training_view(view)
+    with training_view(args):
+        metrics = train(
+            args.scene, model=args.model, out=args.out, steps=args.steps, max_time=args.max_time,
+            batch_rays=args.batch_rays, downscale=args.downscale, holdout_every=args.holdout_every,
+            background=background, random_background=args.random_background, alpha_loss=args.alpha_loss, device=args.device, seed=args.seed, resume=args.resume,
+            eval_every=args.eval_every, learning_rate=args.learning_rate, progress=args.progress,
+            scene_box=[float(v) for v in args.scene_box.split(",")] if "," in args.scene_box else args.scene_box,
+        )
+        print(f"nerf run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
+              f"{opacity_error_text(metrics)}({metrics['steps']} steps, {metrics['seconds']:.0f} s); see {args.out / 'metrics.json'}")
     return 0
 
 

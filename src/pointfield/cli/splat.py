@@ -15,7 +15,7 @@ from pointfield.cli.geometry_options import (
     export_geometry_of,
     opacity_error_text,
 )
-from pointfield.cli.view import add_view_options, finish_training_view, training_view
+from pointfield.cli.view import add_view_options, training_view
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
 DEFAULT_MAX_SPLATS = 200_000  # pointfield.splats.train.DEFAULT_MAX_SPLATS, without importing torch
@@ -101,18 +101,17 @@ def run_train(args: argparse.Namespace) -> int:
     background = args.background
     if background is not None and "," in background:
         background = [float(value) for value in background.split(",")]
-    view = training_view(args)
-    metrics = train(
-        args.scene, out=args.out, steps=args.steps, max_time=args.max_time, downscale=args.downscale,
-        holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss, device=args.device,
-        seed=args.seed,
-        resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,
-        init=args.init, eval_every=args.eval_every, progress=args.progress,
-    )
-    print(f"splat run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
-          f"{opacity_error_text(metrics)}{metrics['splats']:,} splats ({metrics['steps']} steps, {metrics['seconds']:.0f} s); "
-          f"see {args.out / 'metrics.json'}")
-    finish_training_view(view)
+    with training_view(args):
+        metrics = train(
+            args.scene, out=args.out, steps=args.steps, max_time=args.max_time, downscale=args.downscale,
+            holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss, device=args.device,
+            seed=args.seed,
+            resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,
+            init=args.init, eval_every=args.eval_every, progress=args.progress,
+        )
+        print(f"splat run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
+              f"{opacity_error_text(metrics)}{metrics['splats']:,} splats ({metrics['steps']} steps, {metrics['seconds']:.0f} s); "
+              f"see {args.out / 'metrics.json'}")
     return 0
 
 

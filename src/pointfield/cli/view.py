@@ -7,6 +7,8 @@ command runs, so other commands start fast.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 DEFAULT_HOST = "127.0.0.1"  # pointfield.viewer.server.DEFAULT_HOST, without importing viser
@@ -35,10 +37,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(run=run_view)
 
 
+def address(viewer) -> str:
+    """The page's URL, and the port used when the asked-for one was taken."""
+    return f"{viewer.url} ({viewer.port_note})" if viewer.port_note else viewer.url
+
+
 def announce(viewer) -> None:
     """Print where the page is, the moment the server listens (before large files are read)."""
-    note = f" ({viewer.port_note})" if viewer.port_note else ""
-    print(f"pointfield view: open {viewer.url}{note}; Ctrl-C to stop", flush=True)
+    print(f"pointfield view: open {address(viewer)}; Ctrl-C to stop", flush=True)
 
 
 def run_view(args: argparse.Namespace) -> int:
@@ -63,19 +69,22 @@ def add_view_options(parser: argparse.ArgumentParser) -> None:
                         help=f"with --view: port (default {DEFAULT_PORT}; the next free one when it is taken)")
 
 
-def training_view(args: argparse.Namespace):
-    """With ``--view``, the page watching the run that trains into ``args.out``; else None."""
+@contextmanager
+def training_view(args: argparse.Namespace) -> Iterator[None]:
+    """With ``--view``: the block trains into ``args.out`` watched by a page; once it has, the
+    page keeps the trained model up until Ctrl-C. If training fails, the page closes."""
     if not args.view:
-        return None
+        yield
+        return
     from pointfield.viewer.training import watch_training
 
-    return watch_training(args.out, host=args.view_host, port=args.view_port)
-
-
-def finish_training_view(view) -> None:
-    """After training: stop watching; then keep the final model on the page until Ctrl-C."""
-    if view is None:
-        return
+    view = watch_training(args.out, host=args.view_host, port=args.view_port)
+    print(f"watch training at {address(view.viewer)}", flush=True)
+    try:
+        yield
+    except BaseException:
+        view.viewer.close()
+        raise
     view.finish()
     print(f"the page stays up at {view.viewer.url} with the trained model; Ctrl-C to stop", flush=True)
     view.serve()

@@ -5,9 +5,9 @@ it to the page under ``/<name>``:
 
 - at most ``max_points`` points, drawn uniformly at random when the file has more, and the
   panel says so ("showing 2,000,000 of 38,412,905 points");
-- a *colour by* dropdown: ``rgb`` (the file's colours), ``height``, and every other field --
-  scalars (intensity, classification, gps_time, ...) through a colour map, classification
-  through the ASPRS class colours, three-component fields (normals) as RGB;
+- a *colour by* dropdown: ``rgb`` (the file's colours), ``height``, and every other field,
+  coloured as ``pointfield cloud render`` colours them (:func:`pointfield.viz.render.point_colours`),
+  except classification (the ASPRS class colours) and vectors other than normals (their length);
 - a point-size slider, the bounding box and axes (each can be hidden);
 - LAS / UTM coordinates recentred for display (:meth:`~pointfield.viewer.server.Viewer.recentre`),
   while the panel reports real coordinates: the bounds, and the point last clicked with its fields.
@@ -43,8 +43,10 @@ from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats.las.layout import check_layout, check_laz, is_las
 from pointfield.clouds.formats.registry import read
 from pointfield.clouds.mesh import Mesh
+from pointfield.clouds.ops import random_sample
 from pointfield.errors import FormatError, PointfieldError
 from pointfield.viewer.server import Viewer
+from pointfield.viz.render import normalised_colours, point_colours
 
 DEFAULT_MAX_POINTS = 2_000_000
 WORKER_ABOVE_BYTES = 16 * 2**20
@@ -52,6 +54,8 @@ WORKER_ABOVE_BYTES = 16 * 2**20
 WORKER_NICENESS = 10
 PREVIEW_FRACTION = 16
 """The LAZ preview decompresses about ``max_points / PREVIEW_FRACTION`` points."""
+UP = np.array([0.0, 0.0, 1.0])
+"""Height is z, as the page's camera starts (LAS, E57 and most scans are z-up)."""
 ASPRS_CLASS_COLOURS = {
     0: (160, 160, 160), 1: (190, 190, 190), 2: (166, 118, 60), 3: (140, 200, 90), 4: (70, 160, 60),
     5: (30, 110, 40), 6: (220, 80, 60), 7: (255, 0, 255), 8: (255, 220, 0), 9: (50, 120, 230),
@@ -116,14 +120,9 @@ def read_prepared(path: Path, budget: int) -> Prepared | str:
 
 
 def decimate(count: int, budget: int, seed: int = 0) -> np.ndarray | None:
-    """Indices (in file order) of about ``budget`` of ``count`` points drawn uniformly; None when all fit.
-
-    Each point is kept with probability ``budget / count``, so the number kept is ``budget``
-    give or take its square root (a few hundredths of a percent of two million).
-    """
-    if count <= budget:
-        return None
-    return np.flatnonzero(np.random.default_rng(seed).random(count) < budget / count)
+    """Indices (in file order) of ``budget`` of ``count`` points drawn uniformly without
+    replacement (:func:`pointfield.clouds.ops.random_sample`); None when all fit."""
+    return None if count <= budget else np.sort(random_sample(count, budget, np.random.default_rng(seed)))
 
 
 def colour_modes(fields: dict[str, np.ndarray]) -> list[str]:
@@ -137,49 +136,26 @@ def colour_modes(fields: dict[str, np.ndarray]) -> list[str]:
 
 
 def colours_for(mode: str, points: np.ndarray, fields: dict[str, np.ndarray]) -> np.ndarray:
-    """``(n, 3)`` uint8 colours of every point for colour mode ``mode`` (one of :func:`colour_modes`)."""
+    """``(n, 3)`` uint8 colours of every point for colour mode ``mode`` (one of :func:`colour_modes`).
+
+    ``pointfield cloud render``'s colours (:func:`~pointfield.viz.render.point_colours`, height
+    along :data:`UP`), except classification, in the ASPRS class colours, and vector fields other
+    than normals, by their length.
+    """
     if mode == "rgb":
-        return as_uint8_rgb(fields["colors"])
-    if mode == "height":
-        return colour_map(points[:, 2])
-    values = fields[mode]
+        return as_uint8(normalised_colours(fields["colors"]))
+    values = fields.get(mode)
     if mode == "classification" and values.ndim == 1:
         return class_colours(values)
-    if values.ndim == 2 and values.shape[1] in (3, 4) and values.dtype.kind == "u":
-        return as_uint8_rgb(values)
-    if values.ndim == 2 and values.shape[1] == 3:  # normals and other vectors: each axis a channel
-        low, high = np.nanmin(values, axis=0), np.nanmax(values, axis=0)
-        scaled = (values - low) / np.where(high > low, high - low, 1.0)
-        return (np.nan_to_num(scaled) * 255).astype(np.uint8)
-    if values.ndim == 2:
-        values = np.linalg.norm(values.astype(np.float64), axis=1)
-    return colour_map(values)
+    vector = values is not None and values.ndim == 2 and values.shape[1] > 1
+    if vector and not (mode == "normals" and values.shape[1] == 3):
+        mode, fields = "length", {"length": np.linalg.norm(values.astype(np.float64), axis=1)}
+    return as_uint8(point_colours(mode, points, fields, UP))
 
 
-def as_uint8_rgb(colors: np.ndarray) -> np.ndarray:
-    """Colours of any integer or float type (8 or 16 bit, RGB or RGBA, [0, 1] floats) as uint8 RGB."""
-    rgb = np.asarray(colors)[:, :3]
-    if rgb.dtype.kind == "f":
-        top = 1.0 if np.nanmax(rgb, initial=0.0) <= 1.0 else 255.0
-        return (np.clip(np.nan_to_num(rgb) / top, 0, 1) * 255).astype(np.uint8)
-    if rgb.dtype.itemsize > 1 and rgb.max(initial=0) > 255:  # 16-bit LAS colours
-        return (rgb >> 8).astype(np.uint8) if rgb.dtype.kind == "u" else (rgb // 256).astype(np.uint8)
-    return rgb.astype(np.uint8)
-
-
-def colour_map(values: np.ndarray, name: str = "viridis") -> np.ndarray:
-    """Scalar ``values`` through colour map ``name``, stretched between their 2nd and 98th percentiles."""
-    values = np.asarray(values, dtype=np.float64)
-    finite = values[np.isfinite(values)]
-    if len(finite) == 0:
-        return np.full((len(values), 3), 128, np.uint8)
-    sample = finite[:: max(1, len(finite) // 100_000)]
-    low, high = np.percentile(sample, [2, 98])
-    if high <= low:
-        low, high = finite.min(), finite.max()
-    scaled = np.clip((values - low) / (high - low if high > low else 1.0), 0, 1)
-    table = (matplotlib.colormaps[name](np.linspace(0, 1, 256))[:, :3] * 255).astype(np.uint8)
-    return table[(np.nan_to_num(scaled) * 255).astype(np.int64)]
+def as_uint8(rgb: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` colours in [0, 1] as the uint8 the browser takes."""
+    return np.round(np.asarray(rgb) * 255).astype(np.uint8)
 
 
 def class_colours(codes: np.ndarray) -> np.ndarray:
@@ -303,14 +279,14 @@ class CloudView:
                 self.point_size.max = round_down(spacing * 20)
                 self.point_size.step = self.point_size.min
                 self.point_size.value = round_down(spacing)
-                self._frame(low, high, origin)
             self._draw()
+            if first:  # after the points, so that the first picture of the page has them
+                self._frame(low, high, origin)
             self.status.content = self._describe()
-        if first and not self.viewer.framed:
+        if first:
             centre = (low + high) / 2
             size = float(np.linalg.norm(high - low)) or 1.0
-            self.viewer.look_at(centre, centre + size * np.array([0.3, -0.5, 0.4]), up=(0.0, 0.0, 1.0))
-            self.viewer.framed = True
+            self.viewer.first_look(centre, centre + size * np.array([0.3, -0.5, 0.4]), up=tuple(UP))
 
     def _describe(self) -> str:
         shown = self.shown
@@ -360,10 +336,11 @@ class CloudView:
         scene = self.viewer.server.scene
         size = np.maximum(high - low, 1e-6)
         self.nodes["box"] = scene.add_box(f"/{self.name}/box", color=(255, 140, 0), dimensions=tuple(size),
-                                          wireframe=True, position=tuple((low + high) / 2 - origin))
+                                          wireframe=True, position=tuple((low + high) / 2 - origin),
+                                          visible=self.show_box.value)
         length = float(np.linalg.norm(size)) / 10
         self.nodes["axes"] = scene.add_frame(f"/{self.name}/axes", axes_length=length, axes_radius=length / 40,
-                                             position=tuple(low - origin))
+                                             position=tuple(low - origin), visible=self.show_axes.value)
 
     def _toggle(self, name: str, visible: bool) -> None:
         if name in self.nodes:

@@ -25,8 +25,15 @@ from PIL import Image
 from pointfield.scenes.formats.registry import read_scene
 from pointfield.scenes.paths import scene_centre_and_up
 from pointfield.scenes.scene import Scene
-from pointfield.viewer.clouds import as_uint8_rgb, typical_spacing
+from pointfield.viewer.clouds import (
+    DEFAULT_MAX_POINTS,
+    as_uint8,
+    decimate,
+    typical_spacing,
+)
 from pointfield.viewer.server import Viewer, wxyz_of
+from pointfield.viz.render import normalised_colours
+from pointfield.viz.views import to_uint8
 
 THUMBNAIL_SIZE = 96
 PHOTO_SIZE = 480
@@ -58,6 +65,12 @@ def scene_framing(scene: Scene, back: float = 2.0, lift: float = 0.5) -> tuple[n
     return centre, eye, up
 
 
+def vertical_fov(scene: Scene, index: int) -> float:
+    """Camera ``index``'s vertical field of view in radians, ``2 atan(h / 2 fy)``, as viser takes it."""
+    cameras = scene.cameras
+    return float(2 * np.arctan(0.5 * int(cameras.height[index]) / float(cameras.fy[index])))
+
+
 def split_of(scene: Scene) -> list[str]:
     """The split each frame belongs to (train when it is in none)."""
     names = ["train"] * len(scene)
@@ -78,9 +91,8 @@ def add_frustums(viewer: Viewer, scene: Scene, node: str, *, thumbnails: bool = 
     handles = []
     for index in range(len(cameras)):
         width, height = int(cameras.width[index]), int(cameras.height[index])
-        fov = 2 * np.arctan(0.5 * height / float(cameras.fy[index]))
         handle = viewer.server.scene.add_camera_frustum(
-            f"{node}/{index:04d}", fov=float(fov), aspect=width / height, scale=scale,
+            f"{node}/{index:04d}", fov=vertical_fov(scene, index), aspect=width / height, scale=scale,
             thickness=scale / 60, color=SPLIT_COLOURS[splits[index]],
             wxyz=wxyz_of(rotations[index]), position=tuple(centres[index]), visible=visible,
         )
@@ -98,9 +110,8 @@ def add_frustums(viewer: Viewer, scene: Scene, node: str, *, thumbnails: bool = 
 
 
 def resized(image: np.ndarray, longest_side: int) -> np.ndarray:
-    """An ``(H, W, 3)`` float or uint8 image as uint8, at most ``longest_side`` pixels along its longer side."""
-    pixels = as_uint8_rgb(image.reshape(-1, image.shape[-1])).reshape(*image.shape[:2], 3)
-    picture = Image.fromarray(pixels)
+    """A scene's ``(H, W, 3)`` float image in [0, 1] as uint8, at most ``longest_side`` pixels along its longer side."""
+    picture = Image.fromarray(to_uint8(image))
     picture.thumbnail((longest_side, longest_side))
     return np.asarray(picture)
 
@@ -128,13 +139,13 @@ class SceneView:
         if scene.points is not None and len(scene.points.points):
             points = np.asarray(scene.points.points, np.float64)
             colours = scene.points.fields.get("colors")
-            colours = as_uint8_rgb(colours) if colours is not None else (200, 200, 200)
-            low, high = points.min(0), points.max(0)
-            size = typical_spacing(low, high, len(points)) / 2
+            size = typical_spacing(points.min(0), points.max(0), len(points)) / 2
+            keep = decimate(len(points), max_points)
+            keep = slice(None) if keep is None else keep
             self.points = viewer.server.scene.add_point_cloud(
-                f"/{name}/points", (points[:max_points] - viewer.origin).astype(np.float32),
-                colours if isinstance(colours, tuple) else colours[:max_points], point_size=size,
-                precision="float32",
+                f"/{name}/points", (points[keep] - viewer.origin).astype(np.float32),
+                (200, 200, 200) if colours is None else as_uint8(normalised_colours(colours[keep])),
+                point_size=size, precision="float32",
             )
 
     def clicked(self, index: int, event: Any) -> None:
@@ -150,10 +161,11 @@ class SceneView:
         rotation = cameras.rotations.double().numpy()[index]
         camera.wxyz = wxyz_of(rotation)
         camera.position = tuple(centre)
-        camera.fov = float(2 * np.arctan(0.5 * int(cameras.height[index]) / float(cameras.fy[index])))
+        camera.fov = vertical_fov(self.scene, index)
 
 
-def show_scene(viewer: Viewer, path: str | os.PathLike[str], name: str, *, max_points: int = 2_000_000) -> SceneView:
+def show_scene(viewer: Viewer, path: str | os.PathLike[str], name: str, *,
+               max_points: int = DEFAULT_MAX_POINTS) -> SceneView:
     """Add the scene at ``path`` to the page (see the module doc); returns its view."""
     scene = read_scene(Path(path))
     centres = scene.cameras.centers.double().numpy()
@@ -164,8 +176,5 @@ def show_scene(viewer: Viewer, path: str | os.PathLike[str], name: str, *, max_p
     viewer.recentre(low, high)
     viewer.grow(low, high)
     view = SceneView(viewer, scene, name, max_points)
-    if not viewer.framed:
-        target, eye, up = scene_framing(scene)
-        viewer.look_at(target, eye, up)
-        viewer.framed = True
+    viewer.first_look(*scene_framing(scene))
     return view

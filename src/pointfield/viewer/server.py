@@ -60,7 +60,7 @@ class Viewer:
         self.origin = np.zeros(3)
         self.recentred = False
         self.framed = False
-        """Whether a source has set where the camera starts (the first one does)."""
+        """Whether a source has set where the camera starts (:meth:`first_look`)."""
         self._origin_note = server.gui.add_markdown("", order=0, visible=False)
         self._stop = threading.Event()
         self.on_close: list[Callable[[], None]] = []
@@ -95,12 +95,16 @@ class Viewer:
         if np.isfinite(diagonal):
             self.extent = max(self.extent, diagonal)
 
-    def look_at(self, target: np.ndarray, eye: np.ndarray, up: np.ndarray | None = None) -> None:
-        """Point every page's camera from ``eye`` at ``target`` (real coordinates), ``up`` up.
+    def first_look(self, target: np.ndarray, eye: np.ndarray, up: np.ndarray | None = None) -> None:
+        """Point every page's camera from ``eye`` at ``target`` (real coordinates), ``up`` up --
+        unless an earlier source did: the first source shown frames the page.
 
         Pages opened later start there; pages already open (a browser can connect before a
         large file is read) are moved there too.
         """
+        if self.framed:
+            return
+        self.framed = True
         position = np.asarray(eye, np.float64) - self.origin
         target = np.asarray(target, np.float64) - self.origin
         # The clipping planes follow the scene's size (viser's far plane is 1000 units by default).

@@ -28,6 +28,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from pointfield.clouds.formats.ply import SPLAT_PROPERTIES, is_ply, parse_header
+from pointfield.clouds.formats.ply.header import HEADER_LIMIT
 from pointfield.clouds.formats.registry import format_of
 from pointfield.errors import PointfieldError
 from pointfield.viewer.clouds import DEFAULT_MAX_POINTS
@@ -41,7 +43,6 @@ SHOWN_BY = {
 }
 """Kind -> (module, function) that adds a PATH of that kind to the page."""
 KINDS = tuple(SHOWN_BY)
-SPLAT_PROPERTIES = (b"f_dc_0", b"opacity", b"rot_0")
 VIEWABLE_TASKS = ("nerf", "splat")
 
 
@@ -78,13 +79,16 @@ def scene_formats() -> Any:
 
 
 def is_splat_file(path: Path) -> bool:
-    """True for a PLY whose header declares the splat properties (``f_dc_0``, ``opacity``, ``rot_0``)."""
+    """True for a PLY whose vertices have the splat properties (:data:`SPLAT_PROPERTIES`).
+
+    The header is read by the PLY reader's own parser, so a malformed one is its FormatError.
+    """
     with open(path, "rb") as file:
-        head = file.read(65536)
-    if not head.startswith(b"ply"):
+        head = file.read(HEADER_LIMIT)
+    if not is_ply(head):
         return False
-    header = head.split(b"end_header", 1)[0]
-    return all(b" " + name + b"\n" in header or b" " + name + b"\r" in header for name in SPLAT_PROPERTIES)
+    vertices = [e for e in parse_header(path, head).elements if e.name == "vertex"]
+    return bool(vertices) and set(SPLAT_PROPERTIES) <= {p.name for p in vertices[0].properties}
 
 
 def unique_names(paths: Sequence[Path]) -> list[str]:

@@ -65,9 +65,7 @@ def show_splat_file(viewer: Viewer, path: str | os.PathLike[str], name: str) -> 
             f"{len(gaussians):,} Gaussians, SH degree {gaussians.sh_degree} (drawn with degree 0)  \n{path.name}"
         )
     node = add_gaussians(viewer, gaussians, f"/{name}/splats")
-    if not viewer.framed:
-        centre = (low + high) / 2
-        size = float(np.linalg.norm(high - low)) or 1.0
-        viewer.look_at(centre, centre + size * np.array([0.0, -0.8, 0.5]), up=(0.0, 0.0, 1.0))
-        viewer.framed = True
+    centre = (low + high) / 2
+    size = float(np.linalg.norm(high - low)) or 1.0
+    viewer.first_look(centre, centre + size * np.array([0.0, -0.8, 0.5]), up=(0.0, 0.0, 1.0))
     return SplatFileView(gaussians, node)

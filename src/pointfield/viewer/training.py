@@ -58,8 +58,8 @@ class TrainingView:
         self.viewer = viewer
         self.directory = RunDirectory(out)
         self.render_share = render_share
-        self.run: SceneRun | None = None
         self.renderer: BrowserRenderer | None = None
+        """Set (from a thread of its own) once the run's scene is open: see :meth:`after_step`."""
         self._attaching: threading.Thread | None = None
         self.resumed = threading.Event()
         self.resumed.set()
@@ -100,7 +100,7 @@ class TrainingView:
         """Update the page; render when due and cheap enough; wait while paused (see the module doc)."""
         entered = time.perf_counter()
         self._last = (state, loss)
-        if self.run is None and self._attaching is None:
+        if self._attaching is None:
             # Opening the run's scene can take seconds (the synthetic cube is rendered): not here.
             self._attaching = threading.Thread(target=self._attach, args=(model,), daemon=True,
                                                name="pointfield-view-attach")
@@ -133,11 +133,8 @@ class TrainingView:
         device = next(model.parameters()).device
         run = live_run(self.directory, model, device)
         renderer = BrowserRenderer(self.viewer, run.render, depth_range_of(run))
-        if not self.viewer.framed:
-            target, eye, up = scene_framing(run.scene, back=1.0, lift=0.2)
-            self.viewer.look_at(target, eye, up)
-            self.viewer.framed = True
-        self.run, self.renderer = run, renderer
+        self.viewer.first_look(*scene_framing(run.scene, back=1.0, lift=0.2))
+        self.renderer = renderer
 
     def _report(self, state: TrainingState, loss: float) -> None:
         heldout = next((record["psnr"] for record in reversed(state.history) if "psnr" in record), None)
@@ -160,11 +157,11 @@ class TrainingView:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self.finish(*exc)
+        self.finish()
 
-    def finish(self, *exc: object) -> None:
+    def finish(self) -> None:
         """Stop watching; the page goes on showing the final model (rendered on camera moves)."""
-        self._watching.__exit__(*(exc or (None, None, None)))
+        self._watching.__exit__(None, None, None)
         self.finished = True
         self.resumed.set()
         self.pause_button.visible = False
@@ -184,10 +181,7 @@ class TrainingView:
 def watch_training(out: str | os.PathLike[str], host: str = DEFAULT_HOST, port: int = DEFAULT_PORT) -> TrainingView:
     """Start the page for the run that will train into ``out`` and start watching (``nerf train --view``).
 
-    Prints the page's address (and the port used, when ``port`` was taken). Call
-    :meth:`TrainingView.finish` after training, then :meth:`TrainingView.serve`.
+    Call :meth:`TrainingView.finish` after training, then :meth:`TrainingView.serve`.
     """
     viewer = start_viewer(host, port, label=f"pointfield: {Path(out).name}")
-    note = f" ({viewer.port_note})" if viewer.port_note else ""
-    print(f"watch training at {viewer.url}{note}", flush=True)
     return TrainingView(viewer, out).__enter__()
