@@ -93,6 +93,17 @@ def setup(device_name: str | None = None) -> tuple[Distributed | None, torch.dev
 
 
 def shutdown() -> None:
+    """Leave the process group (a no-op without one).
+
+    Its gloo worker threads outlive it: DistributedDataParallel keeps the group alive in C++
+    (torch 2.13), so they run until the process exits. A worker that drops the last
+    reference to a finished all-reduce at that moment frees tensors that belong to Python
+    objects, needs the GIL while the interpreter is shutting down, and aborts the process
+    ("terminate called without an active exception"; one run in about fifteen here). So
+    :func:`~pointfield.training.lifecycle.train` ends with a barrier: gloo's barrier waits
+    for the work in flight, and the slower rank's last writes give the workers time to let
+    go before any rank exits.
+    """
     if dist.is_available() and dist.is_initialized():
         dist.destroy_process_group()
 

@@ -103,6 +103,10 @@ def train(
         }
         if is_main:
             run.write_final_metrics(metrics)
+        if distributed is not None:
+            # Leave together, once gloo's workers have let go of the last collective's tensors:
+            # see processes.shutdown.
+            distributed.barrier()
         return metrics
     finally:
         processes.shutdown()
