@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from pointfield.cli import main
+from pointfield.cli import build_parser, main
 from pointfield.scenes import read_scene, scene_info
 
 
@@ -85,6 +85,18 @@ def test_make_writes_the_cube_dataset(capsys, tmp_path):
     assert "5 views of 16x16" in capsys.readouterr().out
     scene = read_scene(out)
     assert len(scene) == 5 and scene.depth(0).shape == (16, 16)
+    assert len(np.unique(scene.alpha(0))) > 2  # 2 x 2 rays per pixel by default: soft silhouettes
+
+
+def test_make_with_one_ray_per_pixel_gives_hard_silhouettes(tmp_path):
+    from pointfield.scenes.synthetic import SUPERSAMPLING
+
+    out = tmp_path / "cube"
+    assert main(["scene", "make", "cube", "--views", "3", "--size", "16", "--supersampling", "1", "--out", str(out)]) == 0
+    assert set(np.unique(read_scene(out).alpha(0))) == {0.0, 1.0}
+    # The command repeats the library's default so that `pointfield --help` does not import torch.
+    arguments = build_parser().parse_args(["scene", "make", "cube", "--out", str(out)])
+    assert arguments.supersampling == SUPERSAMPLING
 
 
 @pytest.mark.parametrize("argv", [["scene"], ["scene", "make", "teapot", "--out", "x"], ["scene", "info"]])

@@ -83,6 +83,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     make.add_argument(
         "--radius", type=float, default=4.0, help="camera distance from the origin (default: 4)"
     )
+    make.add_argument(
+        "--supersampling", type=int, default=2,
+        help="rays per pixel along each axis, averaged as a camera's pixel averages light (default: 2; "
+             "1 gives staircase silhouettes)",
+    )
     make.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     make.set_defaults(run=_run_make)
 
@@ -246,6 +251,7 @@ def _run_make(args: argparse.Namespace) -> int:
             args.size,
             layout=args.layout,
             radius=args.radius,
+            supersampling=args.supersampling,
             overwrite=args.overwrite,
         )
     )

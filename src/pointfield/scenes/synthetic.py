@@ -15,9 +15,19 @@ Scenes (world z is up; units are arbitrary, the cube's side is 1):
   sizes (:class:`CellTexture`), so that feature detectors find corners everywhere: the scene
   that structure from motion (``scene from-images``) can pose.
 
-Rendering: one ray per pixel through its centre (:meth:`Cameras.rays`), nearest analytic hit
-(slab test for the box, quadratic for spheres, plane for the ground), Lambertian shading
+Rendering: ``supersampling`` x ``supersampling`` rays per pixel (default 2 x 2) on a regular
+grid inside it, each to its nearest analytic hit (slab test for the box, quadratic for spheres,
+plane for the ground), Lambertian shading
 ``c = albedo * (ambient + sum_k I_k max(0, n . l_k) visible_k)`` with hard shadows, clipped to 1.
+A pixel is the box-filtered mean of its rays, as a camera's pixel integrates light and as
+Blender renders the NeRF-synthetic scenes: ``alpha`` is the share of rays that hit (fractional
+on silhouettes) and colour the mean of the hits' colours (straight, not premultiplied). Depth
+and mask are those of one more ray, through the pixel's centre, so that every depth lies on a
+surface (Blender's depth pass is not antialiased either). One ray per pixel
+(``supersampling=1``) gives staircase silhouettes that no model drawing smooth footprints can
+match: on the demo's cube (60 views of 100 x 100), splats trained 1000 steps scored 27.8 dB held
+out there, and the hash-grid field, whose rays go through the same pixel centres, 39.1 dB after
+300; with 2 x 2 rays, 32.1 and 29.7 dB (``pointfield demo`` with those step counts).
 Shading does not depend on the viewing direction, so a surface looks the same from every view.
 Float64 on the CPU with no randomness: the same arguments give byte-identical files.
 
@@ -55,6 +65,8 @@ LAYOUTS = ("sphere", "hemisphere", "ring")
 RING_ELEVATION = math.radians(30)
 SURFACE_OFFSET = 1e-7
 RAYS_PER_BATCH = 1 << 18
+SUPERSAMPLING = 2
+"""Rays per pixel along each image axis (see the module doc)."""
 
 CUBE_FACE_COLORS = (
     (0.90, 0.10, 0.10),  # +x red
@@ -322,31 +334,50 @@ def synthetic_cameras(
     return Cameras(poses, focal, focal, size / 2, size / 2, size, size)
 
 
-def render_scene(name: str, cameras: Cameras) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def render_scene(
+    name: str, cameras: Cameras, supersampling: int = SUPERSAMPLING
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Render synthetic scene ``name`` through ``cameras`` (one image size): RGBA, depth, mask.
 
-    Returns ``rgba`` float32 ``(N, H, W, 4)`` (alpha 1 on surfaces, 0 elsewhere), ``depth``
-    float32 ``(N, H, W)`` z-depth (0 where no surface) and ``mask`` bool ``(N, H, W)``.
+    Returns ``rgba`` float32 ``(N, H, W, 4)`` (straight colour, the mean of the hits among the
+    pixel's ``supersampling**2`` rays; alpha the share of them that hit), ``depth`` float32
+    ``(N, H, W)`` z-depth and ``mask`` bool ``(N, H, W)`` of the ray through the pixel's centre
+    (0 and False where it misses).
     """
+    if int(supersampling) != supersampling or not 1 <= supersampling <= 16:
+        raise SceneError(f"supersampling must be an integer from 1 to 16, got {supersampling}")
     scene = _scene_named(name)
     cameras = cameras.to("cpu", torch.float64)
     if len({(int(w), int(h)) for w, h in zip(cameras.width, cameras.height)}) > 1:
         raise SceneError("render_scene needs cameras of one image size")
-    pixels_per_view = int(cameras.width[0]) * int(cameras.height[0])
-    views_per_batch = max(1, RAYS_PER_BATCH // pixels_per_view)
-    colors, depths, masks = [], [], []
+    width, height, per_axis = int(cameras.width[0]), int(cameras.height[0]), int(supersampling)
+    # Ray k = j * s + i of pixel [v, u] passes through (u + (i + 0.5) / s, v + (j + 0.5) / s);
+    # with s > 1 one more, last, through the centre (u + 0.5, v + 0.5) gives depth and mask.
+    inside = (torch.arange(per_axis, dtype=torch.float64) + 0.5) / per_axis
+    if per_axis > 1:
+        inside = torch.cat([inside, torch.tensor([0.5], dtype=torch.float64)])
+    across = torch.arange(width, dtype=torch.float64)[:, None] + inside          # (W, s + 1)
+    down = torch.arange(height, dtype=torch.float64)[:, None] + inside           # (H, s + 1)
+    grid = torch.stack(torch.broadcast_tensors(across[None, :, None, :], down[:, None, :, None]), dim=-1)
+    samples = per_axis * per_axis
+    grid = torch.cat([grid[:, :, :per_axis, :per_axis].reshape(height, width, samples, 2),
+                      grid[:, :, -1:, -1]], dim=2) if per_axis > 1 else grid.reshape(height, width, 1, 2)
+    views_per_batch = max(1, RAYS_PER_BATCH // grid[..., 0].numel())
+    rgbas, depths, masks = [], [], []
     for first in range(0, len(cameras), views_per_batch):
-        rays = cameras[first : first + views_per_batch].rays().reshape(-1)
-        color, distance = _trace(scene, rays.origins, rays.directions)
+        batch = cameras[first : first + views_per_batch]
+        rays = batch.rays_through(torch.arange(len(batch))[:, None, None, None], grid)   # (V, H, W, K)
+        color, distance = _trace(scene, rays.origins.reshape(-1, 3), rays.directions.reshape(-1, 3))
+        shape = rays.axis_cosine.shape
+        color, distance = color.reshape(*shape, 3)[..., :samples, :], distance.reshape(shape)
         hit = torch.isfinite(distance)
-        colors.append(color)
-        depths.append(torch.where(hit, distance * rays.axis_cosine, torch.zeros_like(distance)))
-        masks.append(hit)
-    shape = (len(cameras), int(cameras.height[0]), int(cameras.width[0]))
-    mask = torch.cat(masks).reshape(shape)
-    rgb = torch.cat(colors).reshape(*shape, 3)
-    rgba = torch.cat([rgb, mask[..., None].to(rgb.dtype)], dim=-1)
-    return rgba.float().numpy(), torch.cat(depths).reshape(shape).float().numpy(), mask.numpy()
+        hits = hit[..., :samples].sum(-1)
+        # Missed rays are black (see _trace), so the sum over the pixel's rays is the hits' sum.
+        rgb = color.sum(-2) / hits.clamp_min(1)[..., None]
+        rgbas.append(torch.cat([rgb, (hits / samples)[..., None]], dim=-1))
+        masks.append(hit[..., -1])
+        depths.append(torch.where(hit[..., -1], distance[..., -1] * rays.axis_cosine[..., -1], 0.0))
+    return torch.cat(rgbas).float().numpy(), torch.cat(depths).float().numpy(), torch.cat(masks).numpy()
 
 
 def _nearest(objects, origins: torch.Tensor, directions: torch.Tensor) -> Hit:
@@ -407,6 +438,7 @@ def synthetic_scene(
     layout: str | None = None,
     radius: float = 4.0,
     camera_angle_x: float = NERF_SYNTHETIC_CAMERA_ANGLE_X,
+    supersampling: int = SUPERSAMPLING,
 ) -> Scene:
     """Render synthetic scene ``name`` into an in-memory :class:`Scene` (images, depth, masks, splits).
 
@@ -423,7 +455,7 @@ def synthetic_scene(
     cameras = synthetic_cameras(
         int(views), int(size), layout=layout, radius=radius, camera_angle_x=camera_angle_x
     )
-    rgba, depth, mask = render_scene(name, cameras)
+    rgba, depth, mask = render_scene(name, cameras, supersampling)
     rgba8 = np.round(rgba * 255).astype(np.uint8)
     frames = [Frame(f"r_{i}", image=rgba8[i], depth=depth[i], mask=mask[i]) for i in range(len(cameras))]
     near = max(radius - builder.bounding_radius, 0.05 * radius)
@@ -443,6 +475,7 @@ def make_scene(
     layout: str | None = None,
     radius: float = 4.0,
     camera_angle_x: float = NERF_SYNTHETIC_CAMERA_ANGLE_X,
+    supersampling: int = SUPERSAMPLING,
     overwrite: bool = False,
 ) -> Path:
     """Render synthetic scene ``name`` and write it to ``out`` as a Blender-format dataset.
@@ -450,5 +483,6 @@ def make_scene(
     ``pointfield scene make NAME --views V --size S --out DIR`` runs this. Returns ``out``.
     100 views of 100 x 100 take about a second.
     """
-    scene = synthetic_scene(name, views, size, layout=layout, radius=radius, camera_angle_x=camera_angle_x)
+    scene = synthetic_scene(name, views, size, layout=layout, radius=radius, camera_angle_x=camera_angle_x,
+                            supersampling=supersampling)
     return write_scene(scene, out, "blender", overwrite=overwrite)
