@@ -56,7 +56,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pointfield.scenes.cameras import Cameras, look_at
+from pointfield.scenes.cameras import Cameras, look_at, pixel_centers
 from pointfield.scenes.formats import write_scene
 from pointfield.scenes.scene import Frame, Scene, SceneError
 
@@ -334,6 +334,19 @@ def synthetic_cameras(
     return Cameras(poses, focal, focal, size / 2, size / 2, size, size)
 
 
+def ray_offsets(per_axis: int) -> torch.Tensor:
+    """``(K, 2)`` float64 ``(u, v)`` offsets from a pixel's corner of the rays :func:`render_scene`
+    traces through it: the ``per_axis`` x ``per_axis`` grid at ``(i + 0.5) / per_axis``, row by
+    row, and -- when ``per_axis > 1`` -- last, the centre ``(0.5, 0.5)`` (the depth and mask ray).
+    With ``per_axis == 1`` the one ray is the centre."""
+    inside = (torch.arange(per_axis, dtype=torch.float64) + 0.5) / per_axis
+    down, across = torch.meshgrid(inside, inside, indexing="ij")
+    offsets = torch.stack([across.flatten(), down.flatten()], dim=-1)
+    if per_axis > 1:
+        offsets = torch.cat([offsets, torch.tensor([[0.5, 0.5]], dtype=torch.float64)])
+    return offsets
+
+
 def render_scene(
     name: str, cameras: Cameras, supersampling: int = SUPERSAMPLING
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -350,18 +363,10 @@ def render_scene(
     cameras = cameras.to("cpu", torch.float64)
     if len({(int(w), int(h)) for w, h in zip(cameras.width, cameras.height)}) > 1:
         raise SceneError("render_scene needs cameras of one image size")
-    width, height, per_axis = int(cameras.width[0]), int(cameras.height[0]), int(supersampling)
-    # Ray k = j * s + i of pixel [v, u] passes through (u + (i + 0.5) / s, v + (j + 0.5) / s);
-    # with s > 1 one more, last, through the centre (u + 0.5, v + 0.5) gives depth and mask.
-    inside = (torch.arange(per_axis, dtype=torch.float64) + 0.5) / per_axis
-    if per_axis > 1:
-        inside = torch.cat([inside, torch.tensor([0.5], dtype=torch.float64)])
-    across = torch.arange(width, dtype=torch.float64)[:, None] + inside          # (W, s + 1)
-    down = torch.arange(height, dtype=torch.float64)[:, None] + inside           # (H, s + 1)
-    grid = torch.stack(torch.broadcast_tensors(across[None, :, None, :], down[:, None, :, None]), dim=-1)
-    samples = per_axis * per_axis
-    grid = torch.cat([grid[:, :, :per_axis, :per_axis].reshape(height, width, samples, 2),
-                      grid[:, :, -1:, -1]], dim=2) if per_axis > 1 else grid.reshape(height, width, 1, 2)
+    width, height = int(cameras.width[0]), int(cameras.height[0])
+    offsets = ray_offsets(int(supersampling))
+    samples = int(supersampling) ** 2
+    grid = pixel_centers(width, height, dtype=torch.float64)[:, :, None, :] - 0.5 + offsets   # (H, W, K, 2)
     views_per_batch = max(1, RAYS_PER_BATCH // grid[..., 0].numel())
     rgbas, depths, masks = [], [], []
     for first in range(0, len(cameras), views_per_batch):
