@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import torch
 
+import pointfield
 from pointfield.cli import main
 from pointfield.errors import PointfieldError
 from pointfield.viewer.clouds import decimate, laz_preview
@@ -108,7 +109,12 @@ def test_a_large_laz_file_is_previewed_from_the_first_points_of_each_chunk(share
     assert total == 110_000
     assert 20_000 <= len(preview.points) < 25_000
     assert preview.points[:, 0].min() > 636_000 and preview.points[:, 0].max() < 637_200
-    assert {"intensity", "classification"} <= set(preview.fields)
+    full = pointfield.read(path)
+    assert set(preview.fields) == set(full.fields)  # every field, as the reader gives them
+    row_of = {tuple(point): row for row, point in enumerate(full.points.tolist())}
+    rows = [row_of[tuple(point)] for point in preview.points.tolist()]
+    for name, values in preview.fields.items():
+        np.testing.assert_array_equal(values, full.fields[name][rows], err_msg=name)
 
 
 def test_pointfield_view_prints_its_url_moves_off_a_taken_port_and_stops_on_ctrl_c(cloud_file):

@@ -44,7 +44,7 @@ from pointfield.clouds.formats import format_of, read
 from pointfield.clouds.formats.binary import record_dtype
 from pointfield.clouds.formats.las.layout import check_layout, check_laz
 from pointfield.clouds.formats.las.library import library_errors
-from pointfield.clouds.formats.las.reader import _cloud_parts, _metadata
+from pointfield.clouds.formats.las.reader import _metadata, cloud_parts
 from pointfield.clouds.formats.npy import cloud_from_array, read_array_header
 from pointfield.clouds.formats.pcd.header import MAX_HEADER_BYTES as PCD_HEADER_LIMIT
 from pointfield.clouds.formats.pcd.header import parse_header as parse_pcd_header
@@ -257,7 +257,7 @@ class LasSource(ChunkSource):
                 yield self._cloud(np.frombuffer(data, self.record))
 
     def _cloud(self, records: np.ndarray) -> PointCloud:
-        points, fields = _cloud_parts(records, self.header, self.path)
+        points, fields = cloud_parts(records, self.header, self.path)
         return PointCloud(points, fields, None, dict(self.metadata))
 
     def _empty(self) -> PointCloud:
@@ -373,7 +373,7 @@ class CopcSource(ChunkSource):
             high = np.round((self.bounds.maxs - self.header.offsets) / self.header.scales)
             raw = np.stack([records["X"], records["Y"], records["Z"]], axis=1)
             records = records[np.all((raw >= low) & (raw <= high), axis=1)]
-        points, fields = _cloud_parts(records, self.header, self.path)
+        points, fields = cloud_parts(records, self.header, self.path)
         return PointCloud(points, fields, None, dict(self.metadata))
 
 

@@ -41,6 +41,7 @@ import numpy as np
 
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats.las.layout import check_layout, check_laz, is_las
+from pointfield.clouds.formats.las.reader import cloud_parts
 from pointfield.clouds.formats.registry import read
 from pointfield.clouds.mesh import Mesh
 from pointfield.clouds.ops import random_sample
@@ -169,8 +170,8 @@ def class_colours(codes: np.ndarray) -> np.ndarray:
 def laz_preview(path: Path, budget: int) -> tuple[PointCloud, int] | None:
     """About ``budget`` points of a chunked LAZ file, quickly: the first points of every chunk.
 
-    Returns the preview cloud (float64 points; ``colors``, ``intensity`` and ``classification``
-    where the file has them) and the file's point count; None for files that are not chunked
+    Returns the preview cloud (points and every field, as :func:`pointfield.read` gives them)
+    and the file's point count; None for files that are not chunked
     LAZ, or not larger than ``budget``. The header and chunk table are checked first, as
     :func:`pointfield.read` checks them (:mod:`pointfield.clouds.formats.las.layout`).
     """
@@ -196,14 +197,8 @@ def laz_preview(path: Path, budget: int) -> tuple[PointCloud, int] | None:
         for start in starts:
             reader.seek(start)
             pieces.append(reader.read_points(min(take, count - start)))
-    points = np.concatenate([np.stack([p.x, p.y, p.z], axis=1) for p in pieces])
-    names = set(pieces[0].point_format.dimension_names)
-    fields: dict[str, np.ndarray] = {}
-    if {"red", "green", "blue"} <= names:
-        fields["colors"] = np.concatenate([np.stack([p.red, p.green, p.blue], axis=1) for p in pieces])
-    for name in ("intensity", "classification"):
-        if name in names:
-            fields[name] = np.concatenate([np.asarray(p[name]) for p in pieces])
+    # Every field, as pointfield.read gives it (the page's colour-by list then stays the same).
+    points, fields = cloud_parts(np.concatenate([piece.array for piece in pieces]), reader.header, path)
     return PointCloud(points, fields), count
 
 

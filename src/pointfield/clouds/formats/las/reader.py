@@ -58,7 +58,7 @@ def read_las(path: Path) -> PointCloud:
                 file.seek(0)
                 header = laspy.LasReader(file, closefd=False).header
                 records = _map_records(path, file, header, layout)
-    points, fields = _cloud_parts(records, header, path)
+    points, fields = cloud_parts(records, header, path)
     # The fields are copies, so dropping the records releases the mapping of the file.
     del records
     return PointCloud(points, fields, None, _metadata(header, layout))
@@ -125,7 +125,7 @@ def _map_records(
     return read_records(map_file(file), dtype, layout.point_count, layout.offset_to_points)
 
 
-def _cloud_parts(
+def cloud_parts(
     records: np.ndarray, header: laspy.LasHeader, path: Path
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Points ``(N, 3)`` float64 and fields (owned, contiguous arrays) from laspy's records.
