@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from pointfield.clouds import ops
+from pointfield.clouds import batched, ops
 from pointfield.clouds.cloud import PointCloud
-
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -79,7 +78,7 @@ def test_canonical_sample_larger_than_the_cloud_returns_every_point():
 def test_fpsample_agrees_with_the_reference_definition():
     points = random_cloud(400)
     fast = ops.farthest_point_sample(points, 64, start=7)
-    slow = ops.farthest_point_sample_reference(torch.from_numpy(points), 64, start=7)
+    slow = batched.farthest_point_sample_reference(torch.from_numpy(points), 64, start=7)
     np.testing.assert_array_equal(fast, slow.numpy())
 
 
@@ -87,10 +86,10 @@ def test_fpsample_agrees_with_the_reference_definition():
 def test_batched_fps_agrees_with_the_reference_for_every_cloud(backend):
     points = torch.from_numpy(np.stack([random_cloud(300, seed) for seed in range(3)]))
     start = torch.tensor([0, 5, 299])
-    batched = ops.farthest_point_sample_batched(points, 48, start=start, backend=backend)
+    sample = batched.farthest_point_sample_batched(points, 48, start=start, backend=backend)
     for b in range(3):
-        reference = ops.farthest_point_sample_reference(points[b], 48, int(start[b]))
-        torch.testing.assert_close(batched[b], reference)
+        reference = batched.farthest_point_sample_reference(points[b], 48, int(start[b]))
+        torch.testing.assert_close(sample[b], reference)
 
 
 @pytest.mark.parametrize("backend", ["torch", "fpsample"])
@@ -98,8 +97,8 @@ def test_fps_starts_at_the_point_farthest_from_the_centroid_in_every_version(bac
     points = random_cloud(200)
     expected = ops.farthest_point_start(points)
     assert ops.farthest_point_sample(points, 5)[0] == expected
-    batched = ops.farthest_point_sample_batched(torch.from_numpy(points)[None], 5, backend=backend)
-    assert int(batched[0, 0]) == expected
+    sample = batched.farthest_point_sample_batched(torch.from_numpy(points)[None], 5, backend=backend)
+    assert int(sample[0, 0]) == expected
 
 
 def test_fps_is_order_independent_by_default():
@@ -115,9 +114,9 @@ def test_fps_asking_for_more_points_than_there_are_repeats_the_start(backend):
     points = random_cloud(6)
     chosen = ops.farthest_point_sample(points, 9, start=2)
     assert sorted(set(chosen.tolist())) == list(range(6)) and (chosen[6:] == 2).all()
-    batched = ops.farthest_point_sample_batched(torch.from_numpy(points)[None], 9,
-                                                start=torch.tensor([2]), backend=backend)
-    assert batched[0].tolist() == chosen.tolist()
+    sample = batched.farthest_point_sample_batched(torch.from_numpy(points)[None], 9,
+                                                   start=torch.tensor([2]), backend=backend)
+    assert sample[0].tolist() == chosen.tolist()
 
 
 @pytest.mark.parametrize("backend", ["torch", "fpsample"])
@@ -125,9 +124,9 @@ def test_batched_fps_never_chooses_padding(backend):
     real = torch.from_numpy(random_cloud(50))
     padded = torch.cat([real, torch.full((30, 3), 100.0)])[None]
     mask = torch.arange(80)[None] < 50
-    chosen = ops.farthest_point_sample_batched(padded, 60, mask, backend=backend)
+    chosen = batched.farthest_point_sample_batched(padded, 60, mask, backend=backend)
     assert chosen.max() < 50
-    unpadded = ops.farthest_point_sample_batched(real[None], 60, backend=backend)
+    unpadded = batched.farthest_point_sample_batched(real[None], 60, backend=backend)
     torch.testing.assert_close(chosen, unpadded)
 
 
@@ -170,7 +169,7 @@ def test_normals_of_a_sphere_point_outward_and_nan_points_get_nan():
 def test_knn_matches_sorting_all_distances():
     points = torch.from_numpy(np.stack([random_cloud(120, 1), random_cloud(120, 2)]))
     query = points[:, :10]
-    distance, index = ops.knn(query, points, 5)
+    distance, index = batched.knn(query, points, 5)
     full = torch.cdist(query.double(), points.double()) ** 2
     expected = full.sort(dim=-1).indices[..., :5]
     torch.testing.assert_close(index, expected)
@@ -180,13 +179,13 @@ def test_knn_matches_sorting_all_distances():
 def test_knn_ignores_padding():
     points = torch.tensor([[[0.0, 0, 0], [1.0, 0, 0], [0.1, 0, 0]]])
     mask = torch.tensor([[True, True, False]])
-    _, index = ops.knn(points[:, :1], points, 2, mask)
+    _, index = batched.knn(points[:, :1], points, 2, mask)
     assert index.tolist() == [[[0, 1]]]
 
 
 def test_ball_query_keeps_points_inside_the_radius_and_pads_with_the_nearest():
     points = torch.tensor([[[0.0, 0, 0], [0.1, 0, 0], [0.15, 0, 0], [2.0, 0, 0]]])
-    group = ops.ball_query(points[:, :1], points, radius=0.2, size=6)
+    group = batched.ball_query(points[:, :1], points, radius=0.2, size=6)
     assert group.tolist() == [[[0, 1, 2, 0, 0, 0]]]
 
 
@@ -194,6 +193,6 @@ def test_ball_query_does_not_depend_on_point_order():
     points = torch.from_numpy(random_cloud(400))[None] * 0.3
     order = torch.randperm(400)
     centres = points[:, :20]
-    a = ops.gather_points(points, ops.ball_query(centres, points, 0.2, 16))
-    b = ops.gather_points(points[:, order], ops.ball_query(centres, points[:, order], 0.2, 16))
+    a = batched.gather_points(points, batched.ball_query(centres, points, 0.2, 16))
+    b = batched.gather_points(points[:, order], batched.ball_query(centres, points[:, order], 0.2, 16))
     torch.testing.assert_close(a, b)

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from pointfield.clouds import ops
+from pointfield.clouds import batched, ops
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.datasets import PART_LABEL_FIELD, CloudCollate
 from pointfield.clouds.formats import read, write
@@ -156,7 +156,7 @@ def _write_parts(
     targets = np.flatnonzero(ops.finite_rows(data.points))
     if len(targets):
         moved = (data.points[targets].astype(np.float64) - centre) / radius
-        _, nearest = ops.knn(
+        _, nearest = batched.knn(
             torch.from_numpy(moved.astype(np.float32))[None], torch.from_numpy(prepared.points)[None], 1,
         )
         labels[targets] = input_labels[nearest[0, :, 0]].numpy()

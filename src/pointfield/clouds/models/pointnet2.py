@@ -35,8 +35,13 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from pointfield.clouds import ops
-from pointfield.clouds.models.layers import MLP, MaxPooledLinear, SharedMLP, apply_to_rows
+from pointfield.clouds import batched
+from pointfield.clouds.models.layers import (
+    MLP,
+    MaxPooledLinear,
+    SharedMLP,
+    apply_to_rows,
+)
 
 # (centroids, radius, neighbours, widths) per level of the single-scale networks.
 SSG_LEVELS = ((512, 0.2, 32, (64, 64, 128)), (128, 0.4, 64, (128, 128, 256)))
@@ -87,7 +92,7 @@ class GroupPointNet(nn.Module):
         inputs = scaled if features is None else torch.cat([scaled, features], dim=-1)
         projected = self.first(inputs)
         offset = (centres / self.radius) @ self.first.weight[:, :3].T
-        hidden = ops.gather_points(projected, group) - offset.unsqueeze(2)  # (B, S, K, C0)
+        hidden = batched.gather_points(projected, group) - offset.unsqueeze(2)  # (B, S, K, C0)
         hidden = self.mlp(apply_to_rows(self.first_activation, hidden))
         batch, count, size, channels = hidden.shape
         return self.pool(hidden.reshape(batch * count, size, channels)).view(batch, count, -1)
@@ -131,12 +136,12 @@ class SetAbstraction(nn.Module):
         # extra ones would only repeat the start point.
         count = min(self.centroids, xyz.shape[1])
         with torch.no_grad():
-            chosen = ops.farthest_point_sample_batched(xyz, count, mask)
-        centres = ops.gather_points(xyz, chosen)  # (B, S, 3)
+            chosen = batched.farthest_point_sample_batched(xyz, count, mask)
+        centres = batched.gather_points(xyz, chosen)  # (B, S, 3)
         pooled = []
         for radius, size, pointnet in zip(self.radii, self.neighbours, self.scales):
             with torch.no_grad():
-                group = ops.ball_query(centres, xyz, radius, size, mask)  # (B, S, K)
+                group = batched.ball_query(centres, xyz, radius, size, mask)  # (B, S, K)
             pooled.append(pointnet(xyz, features, centres, group))
         return centres, torch.cat(pooled, dim=-1)
 
@@ -178,10 +183,10 @@ class FeaturePropagation(nn.Module):
             interpolated = coarse_features.expand(-1, fine_xyz.shape[1], -1)
         else:
             with torch.no_grad():
-                distance, nearest = ops.knn(fine_xyz, coarse_xyz, min(3, coarse_xyz.shape[1]))
+                distance, nearest = batched.knn(fine_xyz, coarse_xyz, min(3, coarse_xyz.shape[1]))
                 weight = 1.0 / distance.clamp_min(1e-10)  # w_i = 1 / d², the paper's p = 2
                 weight = weight / weight.sum(dim=-1, keepdim=True)
-            neighbours = ops.gather_points(coarse_features, nearest)  # (B, N, 3, C2)
+            neighbours = batched.gather_points(coarse_features, nearest)  # (B, N, 3, C2)
             interpolated = (neighbours * weight.unsqueeze(-1)).sum(dim=2)
         joined = interpolated if fine_features is None else torch.cat(
             [interpolated, fine_features], dim=-1
