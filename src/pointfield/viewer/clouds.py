@@ -305,6 +305,7 @@ class CloudView:
             # trimesh (scipy, networkx) takes 0.7 s to import: a page of clouds never waits for it.
             import trimesh
 
+            self.viewer.light_surfaces()
             mesh = trimesh.Trimesh(display, shown.faces, vertex_colors=colours, process=False)
             self.node = scene.add_mesh_trimesh(f"/{self.name}/mesh", mesh)
         else:
