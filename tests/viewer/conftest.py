@@ -102,6 +102,17 @@ def ngp_run(tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="session")
+def splat_run(tmp_path_factory):
+    """Splats trained 10 steps on the synthetic cube (8 views of 24 px)."""
+    from pointfield.splats.train import train
+
+    out = tmp_path_factory.mktemp("runs") / "splats"
+    train(None, out=out, steps=10, eval_every=10, eval_views=1, initial_splats=500, cube_views=8, cube_size=24,
+          device="cpu", progress=False)
+    return out
+
+
 @pytest.fixture
 def served():
     """``served(paths, **options)``: :func:`pointfield.viewer.open_viewer` on any free port, closed after the test."""

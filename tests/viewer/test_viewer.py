@@ -151,3 +151,14 @@ def test_a_cloud_is_coloured_by_any_of_its_fields(served, cloud_file):
     assert not np.array_equal(np.array(node.colors), as_rgb)
     view.point_size.value = view.point_size.max
     assert node.point_size == view.point_size.max
+
+
+def test_a_splat_run_s_gaussians_leave_the_page_while_the_server_renders_it(served, splat_run):
+    # Hidden Gaussians would still be sorted by the browser on every camera move (3.8 fps streamed).
+    viewer, [view] = served([splat_run])
+    scene, node = viewer.server.scene, f"/{splat_run.name}/splats"
+    assert scene.get_handle_by_name(node) is not None and not view.renderer.enabled
+    view.renderer.shown.value = "rgb"
+    assert scene.get_handle_by_name(node) is None and view.renderer.enabled
+    view.renderer.shown.value = "gaussians (browser)"
+    assert scene.get_handle_by_name(node) is not None and not view.renderer.enabled

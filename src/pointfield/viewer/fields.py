@@ -288,11 +288,10 @@ def depth_range_of(run: SceneRun) -> tuple[float, float]:
 
 @dataclass
 class RunView:
-    """A run on the page: the run, its renderer, and (for splats) the Gaussians node."""
+    """A run on the page: the run and its renderer."""
 
     run: SceneRun
     renderer: BrowserRenderer
-    splats: Any = None
 
 
 def show_run(viewer: Viewer, path: str | os.PathLike[str], name: str, *, device: str | None = None,
@@ -311,25 +310,32 @@ def show_run(viewer: Viewer, path: str | os.PathLike[str], name: str, *, device:
         shown = viewer.server.gui.add_checkbox("training cameras", initial_value=False)
         shown.on_update(lambda _: [setattr(frustum, "visible", shown.value) for frustum in frustums])
         if isinstance(run, SplatRun):
-            splats = add_gaussians(viewer, run.gaussians, f"/{name}/splats")
+            node = f"/{name}/splats"
+            splats = add_gaussians(viewer, run.gaussians, node)
             renderer = BrowserRenderer(viewer, run.render, depth_range_of(run), full_size=full_size,
                                        choices=("gaussians (browser)", *SHOWN))
             renderer.enabled = False
 
             def switch(_: Any) -> None:
+                nonlocal splats
                 in_browser = renderer.shown.value.startswith("gaussians")
-                splats.visible = in_browser
                 renderer.enabled = not in_browser
                 if in_browser:
                     renderer.clear()
+                    if splats is None:
+                        splats = add_gaussians(viewer, run.gaussians, node)
                 else:
+                    # Removed, not hidden: the browser sorts hidden Gaussians on every camera move too.
+                    if splats is not None:
+                        splats.remove()
+                        splats = None
                     renderer.invalidate()
 
             renderer.shown.on_update(switch)
         else:
             renderer = BrowserRenderer(viewer, run.render, depth_range_of(run), full_size=full_size)
         renderer.warm_up()
-        view = RunView(run, renderer.start(), splats if isinstance(run, SplatRun) else None)
+        view = RunView(run, renderer.start())
     viewer.first_look(*scene_framing(scene, back=1.0, lift=0.2))
     return view
 
