@@ -10,6 +10,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -162,3 +163,33 @@ def test_a_splat_run_s_gaussians_leave_the_page_while_the_server_renders_it(serv
     assert scene.get_handle_by_name(node) is None and view.renderer.enabled
     view.renderer.shown.value = "gaussians (browser)"
     assert scene.get_handle_by_name(node) is not None and not view.renderer.enabled
+
+
+def test_training_leaves_a_browser_on_this_machine_one_thread_until_it_ends(tmp_path, monkeypatch):
+    # OpenMP threads preempted by a local browser stall each other: splat steps were 50x slower.
+    from pointfield.training.loop import TrainingState
+    from pointfield.viewer.training import TrainingView
+
+    viewer = start_viewer(port=0)
+    try:
+        view = TrainingView(viewer, tmp_path / "run")
+        view._attaching = threading.Thread(target=lambda: None)  # no run to open: only the threads are watched
+        view._attaching.start()
+        threads_seen = []
+
+        def train_watched() -> None:
+            torch.set_num_threads(2)
+            with view:
+                view.after_step(None, TrainingState(), 0.1)
+                threads_seen.append(torch.get_num_threads())  # no tab yet
+                monkeypatch.setattr(viewer.server, "get_clients", lambda: {0: "a tab"})
+                view.after_step(None, TrainingState(step=1), 0.1)
+                threads_seen.append(torch.get_num_threads())
+            threads_seen.append(torch.get_num_threads())
+
+        training = threading.Thread(target=train_watched)
+        training.start()
+        training.join(30)
+        assert threads_seen == [2, 1, 2]
+    finally:
+        viewer.close()
