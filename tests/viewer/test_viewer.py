@@ -193,3 +193,19 @@ def test_training_leaves_a_browser_on_this_machine_one_thread_until_it_ends(tmp_
         assert threads_seen == [2, 1, 2]
     finally:
         viewer.close()
+
+
+def test_the_point_size_follows_the_cloud_that_replaces_the_preview(tmp_path):
+    from pointfield.clouds.cloud import PointCloud
+    from pointfield.viewer.clouds import CloudView, prepare, typical_spacing
+
+    points = np.random.default_rng(0).uniform(0, 100, (40_000, 3))
+    viewer = start_viewer(port=0)
+    try:
+        view = CloudView(viewer, tmp_path / "scan.laz", "scan")
+        view.show(prepare(PointCloud(points[:500]), 40_000, total=40_000, preview=True))
+        assert view.point_size.value == pytest.approx(typical_spacing(points.min(0), points.max(0), 500), rel=0.5)
+        view.show(prepare(PointCloud(points), 40_000))
+        assert view.point_size.value == pytest.approx(typical_spacing(points.min(0), points.max(0), 40_000), rel=0.5)
+    finally:
+        viewer.close()
