@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -209,3 +210,27 @@ def test_the_point_size_follows_the_cloud_that_replaces_the_preview(tmp_path):
         assert view.point_size.value == pytest.approx(typical_spacing(points.min(0), points.max(0), 40_000), rel=0.5)
     finally:
         viewer.close()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_the_reading_worker_dies_with_a_killed_viewer():
+    # A viewer killed while its worker sent back a large cloud left the worker blocked for ever.
+    script = (
+        "import os, time, multiprocessing\n"
+        "from concurrent.futures import ProcessPoolExecutor\n"
+        "from pointfield.viewer.clouds import start_worker\n"
+        "pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context('fork'), initializer=start_worker,"
+        " initargs=(os.getpid(),))\n"
+        "print(pool.submit(os.getpid).result(), flush=True)\n"
+        "pool.submit(time.sleep, 60)\n"
+        "time.sleep(0.5)\n"
+        "os._exit(0)\n"  # no clean shutdown: as when the viewer is killed
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    viewer = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=60,
+                            check=True)
+    worker = int(viewer.stdout.split()[0])
+    deadline = time.monotonic() + 10
+    while Path(f"/proc/{worker}").exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not Path(f"/proc/{worker}").exists()

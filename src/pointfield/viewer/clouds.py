@@ -24,9 +24,12 @@ preview needs a small part of it (:data:`PREVIEW_FRACTION`).
 
 from __future__ import annotations
 
+import ctypes
 import math
 import multiprocessing
 import os
+import signal
+import sys
 import threading
 import warnings
 from concurrent.futures import ProcessPoolExecutor
@@ -120,6 +123,21 @@ def read_prepared(path: Path, budget: int) -> Prepared | str:
         return prepare(cloud, budget)
     except PointfieldError as error:
         return str(error)
+
+
+def start_worker(viewer_pid: int) -> None:
+    """Initializer of the process that reads a large file: a lower priority, and gone with the viewer.
+
+    A viewer killed while the worker sends its result back would leave the worker blocked on the
+    pipe for ever (it holds the pipe's other end too, inherited through the fork), with the cloud
+    in its memory: on Linux the kernel kills it when the viewer dies (``PR_SET_PDEATHSIG``).
+    """
+    os.nice(WORKER_NICENESS)
+    if sys.platform.startswith("linux"):
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None).prctl(pr_set_pdeathsig, signal.SIGKILL)
+        if os.getppid() != viewer_pid:  # the viewer died before the line above
+            os._exit(1)
 
 
 def decimate(count: int, budget: int, seed: int = 0) -> np.ndarray | None:
@@ -251,7 +269,7 @@ class CloudView:
                 cloud, total = preview
                 self.show(prepare(cloud, self.max_points, total=total, preview=True))
             context = multiprocessing.get_context("fork")
-            with ProcessPoolExecutor(1, mp_context=context, initializer=os.nice, initargs=(WORKER_NICENESS,)) as worker:
+            with ProcessPoolExecutor(1, mp_context=context, initializer=start_worker, initargs=(os.getpid(),)) as worker:
                 prepared = worker.submit(read_prepared, self.path, self.max_points).result()
         if isinstance(prepared, str):
             raise PointfieldError(prepared)
