@@ -262,9 +262,9 @@ def main() -> int:
               "quick preview), and to the decimated 2-million-point cloud replacing it; median of "
               f"{args.repeats}. Streaming: the browser's camera orbits for {args.stream_seconds:.0f} s while the "
               "server renders 256 x 256 frames of lego (100 x 100 training views) into a 1024 x 1024 page, then "
-              "stops, and the server renders one 1024 x 1024 frame. Training: per-step training time "
+              "stops, and the server renders one frame the canvas's size. Training: per-step training time "
               "(metrics' training_seconds / steps) of splats and ngp on the synthetic cube, with and without "
-              "a watched page whose camera keeps moving, interleaved.",
+              "a watched page, interleaved; the page's camera still, then orbiting all the time.",
     )
     with chromium() as browser:
         if args.only in (None, "first-frame"):
