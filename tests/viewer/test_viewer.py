@@ -234,3 +234,12 @@ def test_the_reading_worker_dies_with_a_killed_viewer():
     while Path(f"/proc/{worker}").exists() and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not Path(f"/proc/{worker}").exists()
+
+
+def test_a_page_of_clouds_does_not_import_torch():
+    # torch takes a second or two to import: the first frame of a scan should not wait for it.
+    code = ("import sys, pointfield.cli.view, pointfield.viewer.sources, pointfield.viewer.clouds; "
+            "print(sorted(m for m in sys.modules if m == 'torch' or m.startswith('torch.')))")
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    imported = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    assert imported.stdout.strip() == "[]"

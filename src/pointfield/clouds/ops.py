@@ -8,7 +8,7 @@ stated. These prepare data: :func:`centre`, :func:`normalise_to_unit_sphere`,
 run inside models on any device, are in :mod:`pointfield.clouds.batched`.
 
 This module does not import torch (two seconds on a laptop CPU), so that commands which only
-read, sample and write clouds -- ``pointfield view`` on a scan, ``pointfield route`` -- start fast.
+read, sample and write clouds (``pointfield view`` on a scan) start fast.
 
 Farthest point sampling everywhere starts, unless told otherwise, from the point farthest from
 the centroid, so that the sample depends only on the points, never on their order.
