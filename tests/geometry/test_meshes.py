@@ -103,3 +103,18 @@ def test_export_mesh_of_a_run_through_the_command_line(splat_run, tmp_path, caps
     with pytest.raises(PointfieldError, match="no surface"):
         export_mesh(splat_run, tmp_path / "none.ply", resolution=16, min_opacity=1.5, progress=False)
     assert not (tmp_path / "none.ply").exists()
+
+
+def test_a_mesh_and_a_cloud_exported_together_render_each_view_once(splat_run, tmp_path, monkeypatch, capsys):
+    # Rendering is most of an export's time: --mesh with --cloud rendered every view twice.
+    from pointfield.splats.run import SplatRun
+
+    rendered = []
+    render = SplatRun.render
+    monkeypatch.setattr(SplatRun, "render", lambda self, cameras, **options: rendered.append(len(cameras))
+                        or render(self, cameras, **options))
+    code = main(["splat", "export", str(splat_run), "--mesh", str(tmp_path / "mesh.ply"), "--resolution", "32",
+                 "--cloud", str(tmp_path / "cloud.ply"), "--min-opacity", "0.05", "--no-progress"])
+    assert code == 0, capsys.readouterr().err
+    views = int(capsys.readouterr().out.split(" views)")[0].rsplit(" ", 1)[1])
+    assert sum(rendered) == views and len(read(tmp_path / "cloud.ply").points) > 0

@@ -42,12 +42,18 @@ def add_cloud_options(parser: argparse.ArgumentParser) -> None:
 def export_geometry_of(args: argparse.Namespace) -> None:
     """Run :func:`pointfield.geometry.export_cloud` / ``export_mesh`` as the options ask; print what was written."""
     from pointfield.geometry import export_cloud, export_mesh
+    from pointfield.geometry.clouds import cameras_of, open_scene_run, render_views
 
+    run, views = args.run_dir, None
+    if args.mesh is not None and args.cloud is not None and args.method == "tsdf":
+        # Both start from the same renders of the same cameras, most of an export's time: render once.
+        run = open_scene_run(args.run_dir, args.device)
+        views = render_views(run, cameras_of(run, args.path, args.frames), args.progress)
     if args.mesh is not None:
         result = export_mesh(
-            args.run_dir, args.mesh, resolution=args.resolution, method=args.method, threshold=args.threshold,
+            run, args.mesh, resolution=args.resolution, method=args.method, threshold=args.threshold,
             path=args.path, frames=args.frames, min_opacity=args.min_opacity, crop=args.crop, faces=args.faces,
-            device=args.device, progress=args.progress,
+            device=args.device, progress=args.progress, views=views,
         )
         grid = "x".join(map(str, result["grid"]))
         how = (f"density {grid} at {result['threshold']:.3g} over the {result['box_source']}"
@@ -56,9 +62,9 @@ def export_geometry_of(args: argparse.Namespace) -> None:
     if args.cloud is None:
         return
     result = export_cloud(
-        args.run_dir, args.cloud, path=args.path, frames=args.frames, min_opacity=args.min_opacity,
+        run, args.cloud, path=args.path, frames=args.frames, min_opacity=args.min_opacity,
         crop=args.crop, points=args.points, outlier_neighbours=args.outlier_neighbours, device=args.device,
-        progress=args.progress,
+        progress=args.progress, views=views,
     )
     print(f"wrote {result['points']:,} points (of {result['rendered_points']:,} rendered from "
           f"{result['views']} views) to {result['out']}")

@@ -109,23 +109,21 @@ def export_cloud(
     outlier_std: float = 2.0,
     device: str | None = None,
     progress: bool = True,
+    views: list[dict[str, torch.Tensor]] | None = None,
 ) -> dict[str, Any]:
     """Write the point cloud of a trained scene run (a folder, or an opened :class:`SceneRun`) to ``out``.
 
     ``path``: "dataset" (the run's training views), "orbit" or "spiral" (``frames`` cameras around
-    the scene). Returns a summary: points written, views rendered, points before cleaning.
-    Raises :class:`PointfieldError` for a run that is not a scene run, a bad path or crop, and
-    an empty result (everything rendered transparent).
+    the scene). ``views``: :func:`render_views` of those cameras, when the caller has them already
+    (``nerf export --mesh --cloud`` renders once for both). Returns a summary: points written,
+    views rendered, points before cleaning. Raises :class:`PointfieldError` for a run that is not
+    a scene run, a bad path or crop, and an empty result (everything rendered transparent).
     """
-    from tqdm.auto import tqdm
-
     from pointfield.clouds.formats.registry import write
 
-    scene_run = _scene_run(run, device)
+    scene_run = open_scene_run(run, device)
     cameras = cameras_of(scene_run, path, frames)
-    views = []
-    for index in tqdm(range(len(cameras)), desc="rendering", unit="view", disable=not progress):
-        views.extend(scene_run.render(cameras[[index]], outputs=("rgb", "depth", "opacity")))
+    views = render_views(scene_run, cameras, progress) if views is None else views
     cloud = cloud_from_views(views, cameras, min_opacity)
     rendered = len(cloud.points)
     if rendered == 0:
@@ -139,6 +137,17 @@ def export_cloud(
         raise PointfieldError(f"{scene_run.path}: no point is left inside the crop box {list(crop or [])}")
     write(out, cloud)
     return {"out": str(out), "points": len(cloud.points), "views": len(cameras), "rendered_points": rendered}
+
+
+def render_views(scene_run, cameras, progress: bool = True) -> list[dict[str, torch.Tensor]]:
+    """The run's ``rgb`` (H, W, 3), expected ``depth`` and ``opacity`` (H, W) from every camera, one
+    camera at a time: what both exports start from, and most of their time."""
+    from tqdm.auto import tqdm
+
+    views = []
+    for index in tqdm(range(len(cameras)), desc="rendering", unit="view", disable=not progress):
+        views.extend(scene_run.render(cameras[[index]], outputs=("rgb", "depth", "opacity")))
+    return views
 
 
 def cameras_of(scene_run, path: str, frames: int | None):
@@ -158,7 +167,7 @@ def cameras_of(scene_run, path: str, frames: int | None):
     return cameras.to(scene_run.device)
 
 
-def _scene_run(run, device):
+def open_scene_run(run, device):
     """An opened scene run: ``run`` itself, or the run in folder ``run``; else a clear error."""
     from pointfield.scenes.run import SceneRun
 

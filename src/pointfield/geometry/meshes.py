@@ -33,7 +33,7 @@ import torch
 
 from pointfield.clouds.mesh import Mesh
 from pointfield.errors import PointfieldError
-from pointfield.geometry.clouds import _scene_run, cameras_of
+from pointfield.geometry.clouds import cameras_of, open_scene_run, render_views
 from pointfield.geometry.density import (
     default_threshold,
     density_field,
@@ -135,8 +135,12 @@ def export_mesh(
     device: str | None = None,
     memory_limit: int | None = None,
     progress: bool = True,
+    views: list[dict[str, torch.Tensor]] | None = None,
 ) -> dict[str, Any]:
     """Write the mesh of a trained scene run (module docstring) to ``out``; returns a summary.
+
+    ``views``: :func:`~pointfield.geometry.clouds.render_views` of the cameras of ``path`` and
+    ``frames``, when the caller has them already (as for :func:`~pointfield.geometry.export_cloud`).
 
     ``method``: "tsdf" (default) fuses rendered depth; "density" meshes a bounded field run's
     density at ``threshold`` (default :func:`~pointfield.geometry.density.default_threshold`),
@@ -155,7 +159,7 @@ def export_mesh(
         raise PointfieldError(f"the mesh method must be one of {', '.join(MESH_METHODS)}, got {method!r}")
     if method != "density" and threshold is not None:
         raise PointfieldError("a density threshold is for --method density; TSDF meshes have none")
-    scene_run = _scene_run(run, device)
+    scene_run = open_scene_run(run, device)
     if method == "density":
         return _export_density_mesh(
             scene_run, out, resolution=resolution, threshold=threshold, crop=crop, faces=faces,
@@ -177,8 +181,8 @@ def export_mesh(
         low, high, resolution, truncation_voxels=truncation_voxels, device=scene_run.device,
         memory_limit=memory_limit if memory_limit is not None else _default_memory_limit(),
     )
-    views = rendered_depth_maps(scene_run, cameras, min_opacity, progress)
-    fuse(volume, views, cameras)
+    depth_maps = rendered_depth_maps(scene_run, cameras, min_opacity, progress, views)
+    fuse(volume, depth_maps, cameras)
     mesh = mesh_from_volume(volume, min_component)
     fused_faces = len(mesh.faces)
     if faces is not None:
@@ -216,15 +220,14 @@ def _export_density_mesh(scene_run, out: Path, *, resolution, threshold, crop, f
     }
 
 
-def rendered_depth_maps(scene_run, cameras, min_opacity: float = 0.5, progress: bool = True
-                        ) -> list[tuple[torch.Tensor, torch.Tensor]]:
+def rendered_depth_maps(scene_run, cameras, min_opacity: float = 0.5, progress: bool = True,
+                        views: list[dict[str, torch.Tensor]] | None = None) -> list[tuple[torch.Tensor, torch.Tensor]]:
     """``[(z-depth (H, W), colour (H, W, 3))]`` of every camera as the run renders it; 0 depth where
-    the opacity is below ``min_opacity`` (what TSDF fusion takes)."""
-    from tqdm.auto import tqdm
-
+    the opacity is below ``min_opacity`` (what TSDF fusion takes). ``views``: the renders, when
+    already made (:func:`~pointfield.geometry.clouds.render_views`)."""
+    rendered = render_views(scene_run, cameras, progress) if views is None else views
     views = []
-    for index in tqdm(range(len(cameras)), desc="rendering", unit="view", disable=not progress):
-        view = scene_run.render(cameras[[index]], outputs=("rgb", "depth", "opacity"))[0]
+    for index, view in enumerate(rendered):
         rays = cameras.rays(index)
         z_depth = view["depth"].to(rays.axis_cosine) * rays.axis_cosine
         z_depth = torch.where(view["opacity"].to(z_depth.device) >= min_opacity, z_depth, torch.zeros_like(z_depth))
