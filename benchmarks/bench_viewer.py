@@ -227,8 +227,7 @@ def training_cost(browser, kind: str, steps: int, rounds: int, camera: str) -> d
                     with view:
                         per_step["with"].append(train(out))
                     shares.append(view.viewing_seconds / max(time.perf_counter() - view.started, 1e-9))
-                    threads.append((view.threads_before, torch.get_num_threads() if view.threads_before is None
-                                    else max(1, view.threads_before - 1)))
+                    threads.append(view.threads_watched or torch.get_num_threads())
                 finally:
                     moving.clear()
                     mover.join()
@@ -237,7 +236,7 @@ def training_cost(browser, kind: str, steps: int, rounds: int, camera: str) -> d
     without, watched = statistics.median(per_step["without"]), statistics.median(per_step["with"])
     return {"without_ms": 1000 * without, "with_ms": 1000 * watched, "slowdown": watched / without - 1,
             "viewing_share": statistics.median(shares), "runs": rounds, "camera": camera,
-            "threads_without": torch.get_num_threads(), "threads_with": threads[-1][1]}
+            "threads_without": torch.get_num_threads(), "threads_with": min(threads)}
 
 
 def main() -> int:

@@ -20,9 +20,10 @@ A browser on the same machine draws the page on the same processors (all of it, 
 software WebGL). Once a tab is connected to a page bound to the loopback address, training
 leaves it one: torch's intra-op threads go down by one (never below one) until training ends.
 torch's OpenMP threads wait for each other at every operation, and when one of them is
-preempted by the browser the rest wait with it: measured on 2 cores, splat steps on the cube
-took 5x as long with a still camera and 50x with a moving one, against 1.1x and 1.9x with the
-browser left a core (``python benchmarks/bench_viewer.py --only training``).
+preempted by the browser the rest wait with it. With bench_viewer.py's training set-up (splats
+on the cube, 2 cores) and this rule switched off, steps took 5x as long with the page's camera
+still and 50x with it moving; docs/viewer.md gives the figures with it
+(``python benchmarks/bench_viewer.py --only training``).
 """
 
 from __future__ import annotations
@@ -85,6 +86,8 @@ class TrainingView:
         self._last: tuple[TrainingState, float] | None = None
         self.threads_before: int | None = None
         """torch's threads before one was left to a local browser; None while none was."""
+        self.threads_watched: int | None = None
+        """torch's threads training used once one was left to the browser."""
         self._threads_owner: int | None = None
         gui = viewer.server.gui
         with gui.add_folder("training"):
@@ -147,8 +150,9 @@ class TrainingView:
     def _leave_a_thread(self) -> None:
         """One torch thread fewer for training, in the training thread (the setting is per thread)."""
         self.threads_before = torch.get_num_threads()
+        self.threads_watched = max(1, self.threads_before - 1)
         self._threads_owner = threading.get_ident()
-        torch.set_num_threads(max(1, self.threads_before - 1))
+        torch.set_num_threads(self.threads_watched)
 
     def _attach(self, model: nn.Module) -> None:
         device = next(model.parameters()).device
