@@ -123,7 +123,7 @@ def export_cloud(
 
     scene_run = open_scene_run(run, device)
     cameras = cameras_of(scene_run, path, frames)
-    views = render_views(scene_run, cameras, progress) if views is None else views
+    views = render_views(scene_run, cameras, progress, given=views)
     cloud = cloud_from_views(views, cameras, min_opacity)
     rendered = len(cloud.points)
     if rendered == 0:
@@ -139,10 +139,17 @@ def export_cloud(
     return {"out": str(out), "points": len(cloud.points), "views": len(cameras), "rendered_points": rendered}
 
 
-def render_views(scene_run, cameras, progress: bool = True) -> list[dict[str, torch.Tensor]]:
+def render_views(scene_run, cameras, progress: bool = True,
+                 given: list[dict[str, torch.Tensor]] | None = None) -> list[dict[str, torch.Tensor]]:
     """The run's ``rgb`` (H, W, 3), expected ``depth`` and ``opacity`` (H, W) from every camera, one
-    camera at a time: what both exports start from, and most of their time."""
+    camera at a time: what both exports start from, and most of their time. ``given``: renders
+    the caller already has, returned as they are (one per camera, or a ValueError)."""
     from tqdm.auto import tqdm
+
+    if given is not None:
+        if len(given) != len(cameras):
+            raise ValueError(f"{len(given)} rendered views for {len(cameras)} cameras")
+        return given
 
     views = []
     for index in tqdm(range(len(cameras)), desc="rendering", unit="view", disable=not progress):

@@ -225,7 +225,7 @@ def rendered_depth_maps(scene_run, cameras, min_opacity: float = 0.5, progress: 
     """``[(z-depth (H, W), colour (H, W, 3))]`` of every camera as the run renders it; 0 depth where
     the opacity is below ``min_opacity`` (what TSDF fusion takes). ``views``: the renders, when
     already made (:func:`~pointfield.geometry.clouds.render_views`)."""
-    rendered = render_views(scene_run, cameras, progress) if views is None else views
+    rendered = render_views(scene_run, cameras, progress, given=views)
     views = []
     for index, view in enumerate(rendered):
         rays = cameras.rays(index)
