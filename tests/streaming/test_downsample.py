@@ -43,10 +43,14 @@ def test_one_chunk_many_chunks_and_a_tiny_memory_budget_give_the_same_bytes(tmp_
     monkeypatch.setattr(voxels, "_park_one", counting_park_one)
     downsample(data["laz"], tmp_path / "parked.laz", 0.5)
     assert parked, "the state was never parked: the test would prove nothing"
+    # Parked state written to disk and read back in pieces of a few voxels.
+    monkeypatch.setattr(voxels, "RECORDS_PIECE", 7)
+    downsample(data["laz"], tmp_path / "pieces.laz", 0.5)
     one = (tmp_path / "one.laz").read_bytes()
     assert (tmp_path / "many.laz").read_bytes() == one
     assert (tmp_path / "parked.laz").read_bytes() == one
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["many.laz", "one.laz", "parked.laz"]
+    assert (tmp_path / "pieces.laz").read_bytes() == one
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["many.laz", "one.laz", "parked.laz", "pieces.laz"]
 
 
 def test_nearest_to_centre_keeps_real_points_as_the_in_memory_reference_does(tmp_path, data, written):

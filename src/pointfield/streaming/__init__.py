@@ -4,6 +4,7 @@ The pieces, in the order data flows through them:
 
 =====================  ====================================================================
 ``chunks.py``          :func:`read_chunks` / :func:`open_source`: a file as windows of points
+``readahead.py``       the next window read in a thread while this one is worked on
 ``writers.py``         :func:`open_writer`: a file written chunk by chunk, atomically
 ``spill.py``           chunks parked on disk between two passes (per tile, per voxel range)
 ``voxels.py``          the exact one-pass voxel accumulator, bounded by spilling key ranges

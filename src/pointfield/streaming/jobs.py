@@ -32,6 +32,7 @@ from pointfield.streaming.memory import (
     plan,
     return_freed_arrays,
 )
+from pointfield.streaming.readahead import read_ahead
 
 
 @dataclass(frozen=True)
@@ -146,9 +147,9 @@ def indexed_chunks(
     bar: tqdm | None = None,
 ) -> Iterator[tuple[PointCloud, np.ndarray]]:
     """``(chunk, index)`` for each window of ``source``; ``index`` is each point's position in
-    the file."""
+    the file. The next window is read while the caller works on this one (:func:`read_ahead`)."""
     low = start
-    for chunk in source.chunks(points, start, stop):
+    for chunk in read_ahead(source.chunks(points, start, stop)):
         index = np.arange(low, low + len(chunk), dtype=np.int64)
         low += len(chunk)
         if bar is not None:

@@ -2,8 +2,8 @@
 
 A budget is the resident memory a job may use, the interpreter and its libraries included.
 :func:`plan` divides it: the interpreter's own footprint (measured, at least
-``BASELINE_BYTES``), the chunks in flight (read, converted, reduced: ``CHUNK_COPIES`` copies
-of a chunk), and what remains for a verb's running state (the voxel accumulators of
+``BASELINE_BYTES``), the chunks in flight (the one read ahead, the one read, converted and
+reduced: ``CHUNK_COPIES`` copies of a chunk), and what remains for a verb's running state (the voxel accumulators of
 ``downsample``), which spills to disk when it outgrows its share. A job also fixes glibc's mmap
 threshold (:func:`return_freed_arrays`, called by :func:`~.jobs.streaming_job`), without which
 freed chunks stay resident and memory grows with the input rather than staying at the budget.
@@ -23,7 +23,8 @@ MIN_MEMORY = 256 << 20
 # numpy, laspy, pointfield: the resident size of an interpreter before it reads anything.
 BASELINE_BYTES = 200 << 20
 # Bytes a point costs while its chunk is in flight, per byte of its record: the raw record,
-# its fields as arrays, float64 coordinates and voxel keys, and numpy's temporaries.
+# its fields as arrays, float64 coordinates and voxel keys, numpy's temporaries, and the next
+# chunk read ahead (streaming/readahead.py).
 CHUNK_COPIES = 8
 MIN_CHUNK_POINTS = 1 << 12
 MAX_CHUNK_POINTS = 1 << 22

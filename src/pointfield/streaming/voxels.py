@@ -48,6 +48,8 @@ from pointfield.streaming.spill import Spill
 
 MODES = ("centroid", "nearest")
 KEY_END = 2**62
+# Voxels per piece when state is written to disk: a few tens of MB of records at a time.
+RECORDS_PIECE = 1 << 18
 # How deep reduce_voxels may split a partition that is still too big when its turn comes.
 MAX_DEPTH = 6
 
@@ -92,6 +94,51 @@ class VoxelGrid:
         """The key range of the slab of cells with ``first <= i < stop``."""
         _, ny, nz = self.shape
         return first * ny * nz, stop * ny * nz
+
+
+def stable_key_order(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(order, keys[order])``: the stable ascending order of ``(N,)`` int64 keys.
+
+    numpy's stable argsort of int64 is a merge sort. Each key's position packed into its low
+    bits, ``(key - min) << b | position``, makes the keys distinct, so numpy's vectorised
+    (unstable) sort of the packed values gives the same order, about twice as fast; keys
+    spanning too many bits for that fall back to the merge sort.
+    """
+    n = len(keys)
+    if n == 0:
+        return np.zeros(0, np.int64), keys.astype(np.int64)
+    low = int(keys.min())
+    shift = max(n - 1, 1).bit_length()
+    if (int(keys.max()) - low).bit_length() + shift > 62:
+        order = np.argsort(keys, kind="stable")
+        return order, keys[order]
+    packed = (keys - low) << shift
+    packed |= np.arange(n, dtype=np.int64)
+    packed.sort()
+    order = packed & ((1 << shift) - 1)
+    packed >>= shift
+    packed += low
+    return order, packed
+
+
+def merge_index(keys: np.ndarray, slots: np.ndarray, new_keys: np.ndarray, new_slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two sorted key indices with no key in common, merged: ``(keys, slots)`` of both, sorted.
+
+    ``np.insert`` twice does the same, a third slower (it sorts the positions and builds its
+    mask once per array).
+    """
+    at = np.searchsorted(keys, new_keys)
+    at += np.arange(len(new_keys))  # where each new key lands in the merged index
+    total = len(keys) + len(new_keys)
+    old = np.ones(total, bool)
+    old[at] = False
+    merged_keys = np.empty(total, np.int64)
+    merged_keys[at] = new_keys
+    merged_keys[old] = keys
+    merged_slots = np.empty(total, np.int64)
+    merged_slots[at] = new_slots
+    merged_slots[old] = slots
+    return merged_keys, merged_slots
 
 
 def squared_distance(points: np.ndarray, centres: np.ndarray) -> np.ndarray:
@@ -193,9 +240,7 @@ class VoxelAccumulator:
     def index(self) -> tuple[np.ndarray, np.ndarray]:
         """The sorted voxel keys held and their slots."""
         if len(self.recent_keys):
-            at = np.searchsorted(self.keys, self.recent_keys)
-            self.keys = np.insert(self.keys, at, self.recent_keys)
-            self.slots = np.insert(self.slots, at, self.recent_slots)
+            self.keys, self.slots = merge_index(self.keys, self.slots, self.recent_keys, self.recent_slots)
             self.recent_keys = self.recent_keys[:0]
             self.recent_slots = self.recent_slots[:0]
         return self.keys, self.slots
@@ -225,15 +270,13 @@ class VoxelAccumulator:
             return
         points = np.asarray(cloud.points, np.float64)
         cells = grid.cells(points) if cells is None else cells
-        keys = grid.keys(cells)
-        order = np.argsort(keys, kind="stable")
-        sorted_keys = keys[order]
+        order, sorted_keys = stable_key_order(grid.keys(cells))
         starts = np.ones(n, bool)
         starts[1:] = sorted_keys[1:] != sorted_keys[:-1]
         unique = sorted_keys[starts]
-        group_of_sorted = np.cumsum(starts) - 1
-        group = np.empty(n, np.int64)
-        group[order] = group_of_sorted
+        counts = np.diff(np.append(np.flatnonzero(starts), n))
+        group = np.empty(n, np.int64)  # each point's position in ``unique``
+        group[order] = np.cumsum(starts) - 1
 
         slot = np.full(len(unique), -1, np.int64)
         self._lookup(self.keys, self.slots, unique, slot, slot < 0)
@@ -243,9 +286,7 @@ class VoxelAccumulator:
         new_count = int(fresh.sum())
         slot[fresh] = np.arange(self.size, self.size + new_count)
         self._reserve(self.size + new_count)
-        at = np.searchsorted(self.recent_keys, unique[fresh])
-        self.recent_keys = np.insert(self.recent_keys, at, unique[fresh])
-        self.recent_slots = np.insert(self.recent_slots, at, slot[fresh])
+        self.recent_keys, self.recent_slots = merge_index(self.recent_keys, self.recent_slots, unique[fresh], slot[fresh])
         if len(self.recent_keys) > max(1 << 16, len(self.keys) // 4):
             self.index()
         self.size += new_count
@@ -253,7 +294,6 @@ class VoxelAccumulator:
         # New voxels take the next slots, in key order: their state is written as slices.
         new_slots = slice(self.size - new_count, self.size)
         state["key"][new_slots] = unique[fresh]
-        slots = slot[group]
 
         if self.mode == "centroid":
             # First point of each voxel in this chunk: the stable sort keeps file order.
@@ -262,8 +302,8 @@ class VoxelAccumulator:
             for name in self.specs:
                 if name not in self.mean_fields:
                     state[f"value:{name}"][new_slots] = cloud.fields[name][new_first]
-            counts = np.diff(np.append(np.flatnonzero(starts), n))
             state["count"][slot] += counts
+            slots = slot[group]
             for axis in range(3):
                 np.add.at(state[f"sum#{axis}"], slots, points[:, axis])
             for name in self.mean_fields:
@@ -332,11 +372,8 @@ class VoxelAccumulator:
 
     # -- moving state to and from disk ------------------------------------------------------
 
-    def records(self, low: int, high: int) -> np.ndarray:
-        """The state of the voxels with keys in ``[low, high)`` as records, in key order."""
-        self.index()
-        first, stop = (int(v) for v in np.searchsorted(self.keys, [low, high]))
-        slots = self.slots[first:stop]
+    def _records_of(self, slots: np.ndarray) -> np.ndarray:
+        """The state of the voxels in ``slots`` as records (``self.record``), in that order."""
         records = np.empty(len(slots), self.record)
         for name, (_, shape) in self.columns.items():
             if name == "sum" or name.startswith("sum:"):
@@ -346,22 +383,37 @@ class VoxelAccumulator:
                 records[name] = self.state[name][slots]
         return records
 
-    def take(self, low: int, high: int) -> np.ndarray:
-        """Remove the voxels with keys in ``[low, high)`` and return their state as records."""
-        records = self.records(low, high)
+    def write_records(self, low: int, high: int, into: Spill) -> tuple[int, int]:
+        """Append the state of the voxels with keys in ``[low, high)`` to ``into`` as records, in
+        key order, a piece at a time; returns where they lie in the index, ``keys[first:stop]``."""
+        self.index()
         first, stop = (int(v) for v in np.searchsorted(self.keys, [low, high]))
-        slots = self.slots[first:stop]
+        for at in range(first, stop, RECORDS_PIECE):
+            into.append_records(self._records_of(self.slots[at : min(at + RECORDS_PIECE, stop)]))
+        return first, stop
+
+    def take(self, low: int, high: int, into: Spill) -> None:
+        """Move the voxels with keys in ``[low, high)`` to ``into``, as records in key order.
+
+        Memory: the records go out a piece at a time, and the state shrinks a column at a time,
+        so that parking costs little more than the state already held (it is what happens when
+        the state is at its largest).
+        """
+        first, stop = self.write_records(low, high, into)
+        gone = np.sort(self.slots[first:stop])
         keep = np.ones(self.size, bool)
-        keep[slots] = False
-        renumber = np.cumsum(keep) - 1
+        keep[gone] = False
         for name in list(self.state):  # column by column, as _reserve
             values = self.state.pop(name)
             self.state[name] = values[: self.size][keep]
             del values
-        self.size = int(keep.sum())
+        del keep
+        self.size -= len(gone)
         self.keys = np.concatenate([self.keys[:first], self.keys[stop:]])
-        self.slots = renumber[np.concatenate([self.slots[:first], self.slots[stop:]])]
-        return records
+        slots = np.concatenate([self.slots[:first], self.slots[stop:]])
+        self.slots = None  # free the old index before its renumbered copy is built
+        slots -= np.searchsorted(gone, slots)  # each kept slot moves down past the slots taken
+        self.slots = slots
 
     def load(self, records: np.ndarray) -> None:
         """Add voxels from :meth:`take`'s records (their keys must be new here)."""
@@ -376,10 +428,8 @@ class VoxelAccumulator:
                 self.state[name][slots] = records[name]
         self.size += n
         self.index()
-        keys = records["key"]  # sorted: take() returns key order
-        at = np.searchsorted(self.keys, keys)
-        self.keys = np.insert(self.keys, at, keys)
-        self.slots = np.insert(self.slots, at, slots)
+        # take() returned the records in key order
+        self.keys, self.slots = merge_index(self.keys, self.slots, records["key"], slots)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -431,8 +481,7 @@ def reduce_voxels(
     metadata = dict(template.metadata)
     accumulator = VoxelAccumulator(template, mode)
     if initial is not None:
-        # In one piece: the state was at most half the budget when it was parked.
-        for records in initial.records(max(len(initial), 1)):
+        for records in initial.records(RECORDS_PIECE):
             accumulator.load(records)
     partitions: list[_Partition] | None = None
     cuts = np.zeros(0, np.int64)
@@ -468,7 +517,7 @@ def reduce_voxels(
     for number, partition in enumerate(partitions):
         if not partition.parked:
             partition.state = Spill(scratch / f"state-{number}.spill", template, dtype=accumulator.record)
-            partition.state.append_records(accumulator.records(partition.low, partition.high))
+            accumulator.write_records(partition.low, partition.high, partition.state)
             partition.points = Spill(scratch / f"points-{number}.spill", template, with_index=True)
     del accumulator
     for number, partition in enumerate(partitions):
@@ -542,5 +591,5 @@ def _park_one(accumulator: VoxelAccumulator, partitions: list[_Partition], numbe
     """Move partition ``number``'s state to disk; its points will follow it there."""
     partition = partitions[number]
     partition.state = Spill(scratch / f"state-{number}.spill", template, dtype=accumulator.record)
-    partition.state.append_records(accumulator.take(partition.low, partition.high))
+    accumulator.take(partition.low, partition.high, partition.state)
     partition.points = Spill(scratch / f"points-{number}.spill", template, with_index=True)
