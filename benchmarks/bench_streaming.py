@@ -197,6 +197,18 @@ def peer(name: str, source: Path, out: Path, voxel: float) -> dict:
     return {**result, **json.loads(result["stdout"].strip().splitlines()[-1])}
 
 
+# A LAS header's file creation day and year (bytes 90 to 93): two runs either side of midnight
+# write different dates into files that are otherwise the same.
+CREATION_DATE = slice(90, 94)
+
+
+def same_las(a: Path, b: Path) -> bool:
+    """Whether two LAS / LAZ files are byte for byte the same, their creation dates aside."""
+    first, second = bytearray(a.read_bytes()), bytearray(b.read_bytes())
+    first[CREATION_DATE] = second[CREATION_DATE] = bytes(4)
+    return first == second
+
+
 def gb(value: float) -> str:
     return f"{value / 1e9:.2f}"
 
@@ -258,12 +270,12 @@ def main() -> int:
         "import sys, pointfield; from pointfield.clouds.ops import voxel_downsample; "
         "pointfield.write(sys.argv[2], voxel_downsample(pointfield.read(sys.argv[1]), float(sys.argv[3])))"),
         str(subset), str(args.output / "subset-memory.laz"), str(args.voxel)], env={"PYTHONPATH": str(ROOT / "src")})
-    same = (args.output / "subset-streamed.laz").read_bytes() == (args.output / "subset-memory.laz").read_bytes()
+    same = same_las(args.output / "subset-streamed.laz", args.output / "subset-memory.laz")
     record.table(["path", "points", "seconds", "peak GB"], [
         ["streamed (cloud downsample)", f"{args.subset:,}", f"{streamed['seconds']:.1f}", gb(streamed["peak_bytes"])],
         ["in memory (read, voxel_downsample, write)", f"{args.subset:,}", f"{in_memory['seconds']:.1f}", gb(in_memory["peak_bytes"])],
     ], title="The subset that fits in memory")
-    record.verdict("streamed output is byte-identical to the in-memory path on the subset", same,
+    record.verdict("streamed output is byte-identical to the in-memory path on the subset (creation date aside)", same,
                    f"{args.subset:,} points, voxel {args.voxel}")
 
     # 2. peak memory as the input grows, under a budget that binds at every size
@@ -359,7 +371,7 @@ def dask_scaling(record: Record, args: argparse.Namespace) -> None:
                 started = time.perf_counter()
                 convert_folder(scans, out, ".laz", client=client, overwrite=True)
                 times[workers].append(time.perf_counter() - started)
-            identical &= all((out / p.name).read_bytes() == p.read_bytes() for p in single.iterdir())
+            identical &= all(same_las(out / p.name, p) for p in single.iterdir())
     median = {w: float(np.median(t)) for w, t in times.items()}
     points = args.scans * args.scan_points
     record.table(["run", "scans", "seconds (median)", "runs", "M points/s"], [
@@ -369,7 +381,7 @@ def dask_scaling(record: Record, args: argparse.Namespace) -> None:
     ], title=f"cloud convert DIR OUT --to .laz --workers N: {args.scans} scans of {args.scan_points:,} points (cluster start-up not counted)")
     speedup = median[1] / median[2]
     record.verdict("2 Dask workers at least 1.6x faster than 1 on the folder conversion", speedup >= 1.6, f"{speedup:.2f}x")
-    record.verdict("the Dask results are byte-identical to the single-process ones", identical,
+    record.verdict("the Dask results are byte-identical to the single-process ones (creation date aside)", identical,
                    f"{args.scans} files, 1 and 2 workers")
     record.figures.update({"dask_speedup": speedup, "dask_seconds": median, "single_process_seconds": single_seconds})
 
