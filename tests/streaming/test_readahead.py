@@ -9,7 +9,7 @@ import pytest
 
 from pointfield.errors import FormatError
 from pointfield.streaming.readahead import read_ahead
-from pointfield.streaming.voxels import merge_index, stable_key_order
+from pointfield.streaming.voxels import merge_places, merged, stable_key_order
 
 
 def test_read_ahead_gives_every_item_in_order_from_another_thread():
@@ -74,13 +74,14 @@ def test_stable_key_order_is_numpys_stable_argsort(span):
     assert len(empty_order) == len(empty_keys) == 0
 
 
-def test_merge_index_is_two_inserts():
+def test_merging_an_index_is_two_inserts():
     rng = np.random.default_rng(1)
     keys = np.sort(rng.choice(10**6, 3000, replace=False))
     taken = rng.random(3000) < 0.3
     old_keys, new_keys = keys[~taken], keys[taken]
     old_slots, new_slots = rng.permutation(len(old_keys)), np.arange(len(new_keys)) + 10**5
-    merged_keys, merged_slots = merge_index(old_keys, old_slots, new_keys, new_slots)
+    places = merge_places(old_keys, new_keys)
+    merged_keys, merged_slots = merged(old_keys, new_keys, *places), merged(old_slots, new_slots, *places)
     at = np.searchsorted(old_keys, new_keys)
     np.testing.assert_array_equal(merged_keys, np.insert(old_keys, at, new_keys))
     np.testing.assert_array_equal(merged_slots, np.insert(old_slots, at, new_slots))

@@ -121,24 +121,27 @@ def stable_key_order(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return order, packed
 
 
-def merge_index(keys: np.ndarray, slots: np.ndarray, new_keys: np.ndarray, new_slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two sorted key indices with no key in common, merged: ``(keys, slots)`` of both, sorted.
+def merge_places(keys: np.ndarray, new_keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where two sorted key arrays with no key in common go when merged into one sorted array:
+    ``(at, old)``, the merged positions of ``new_keys`` and the mask of the places of ``keys``.
 
-    ``np.insert`` twice does the same, a third slower (it sorts the positions and builds its
-    mask once per array).
+    :func:`merged` then builds each merged array (the keys, the slots) one at a time, so that
+    the old copy of one can be freed before the next is built. ``np.insert`` does the same, a
+    third slower (it sorts the positions and builds its mask once per array).
     """
     at = np.searchsorted(keys, new_keys)
-    at += np.arange(len(new_keys))  # where each new key lands in the merged index
-    total = len(keys) + len(new_keys)
-    old = np.ones(total, bool)
+    at += np.arange(len(new_keys))
+    old = np.ones(len(keys) + len(new_keys), bool)
     old[at] = False
-    merged_keys = np.empty(total, np.int64)
-    merged_keys[at] = new_keys
-    merged_keys[old] = keys
-    merged_slots = np.empty(total, np.int64)
-    merged_slots[at] = new_slots
-    merged_slots[old] = slots
-    return merged_keys, merged_slots
+    return at, old
+
+
+def merged(values: np.ndarray, new_values: np.ndarray, at: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """``values`` and ``new_values`` in the places :func:`merge_places` found."""
+    out = np.empty(len(old), values.dtype)
+    out[at] = new_values
+    out[old] = values
+    return out
 
 
 def squared_distance(points: np.ndarray, centres: np.ndarray) -> np.ndarray:
@@ -240,7 +243,10 @@ class VoxelAccumulator:
     def index(self) -> tuple[np.ndarray, np.ndarray]:
         """The sorted voxel keys held and their slots."""
         if len(self.recent_keys):
-            self.keys, self.slots = merge_index(self.keys, self.slots, self.recent_keys, self.recent_slots)
+            at, old = merge_places(self.keys, self.recent_keys)
+            # One array at a time: the old keys are freed before the merged slots are built.
+            self.keys = merged(self.keys, self.recent_keys, at, old)
+            self.slots = merged(self.slots, self.recent_slots, at, old)
             self.recent_keys = self.recent_keys[:0]
             self.recent_slots = self.recent_slots[:0]
         return self.keys, self.slots
@@ -286,7 +292,9 @@ class VoxelAccumulator:
         new_count = int(fresh.sum())
         slot[fresh] = np.arange(self.size, self.size + new_count)
         self._reserve(self.size + new_count)
-        self.recent_keys, self.recent_slots = merge_index(self.recent_keys, self.recent_slots, unique[fresh], slot[fresh])
+        at, old = merge_places(self.recent_keys, unique[fresh])
+        self.recent_keys = merged(self.recent_keys, unique[fresh], at, old)
+        self.recent_slots = merged(self.recent_slots, slot[fresh], at, old)
         if len(self.recent_keys) > max(1 << 16, len(self.keys) // 4):
             self.index()
         self.size += new_count
@@ -428,8 +436,9 @@ class VoxelAccumulator:
                 self.state[name][slots] = records[name]
         self.size += n
         self.index()
-        # take() returned the records in key order
-        self.keys, self.slots = merge_index(self.keys, self.slots, records["key"], slots)
+        at, old = merge_places(self.keys, records["key"])  # take() wrote them in key order
+        self.keys = merged(self.keys, records["key"], at, old)
+        self.slots = merged(self.slots, slots, at, old)
 
 
 # ---------------------------------------------------------------------------------------------
