@@ -12,7 +12,7 @@ from pointfield.metrics import ssim
 from pointfield.scenes import make_scene
 from pointfield.splats.densification import DefaultStrategy
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
-from pointfield.splats.loss import splat_loss
+from pointfield.splats.loss import flatness, opacity_entropy, splat_loss
 from pointfield.splats.ply import read_splats
 from pointfield.splats.rasterizer import rasterization
 from pointfield.splats.train import train
@@ -37,6 +37,37 @@ def test_loss_is_the_3dgs_mix_of_l1_and_the_metrics_ssim():
 def test_loss_is_zero_for_equal_images():
     image = torch.rand(16, 16, 3)
     assert float(splat_loss(image, image)) == pytest.approx(0, abs=1e-6)
+
+
+def test_opacity_entropy_is_zero_for_decided_splats_and_log_two_at_one_half():
+    assert float(opacity_entropy(torch.tensor([0.0, 1.0, 0.0]))) == pytest.approx(0, abs=1e-4)
+    assert float(opacity_entropy(torch.tensor([0.5, 0.5]))) == pytest.approx(np.log(2), abs=1e-6)
+    opacities = torch.tensor([0.3, 0.8], requires_grad=True)
+    opacity_entropy(opacities).backward()
+    assert opacities.grad[1] < 0 < opacities.grad[0]  # descent takes 0.3 towards 0, 0.8 towards 1
+
+
+def test_flatness_is_the_mean_smallest_scale_in_scene_units():
+    scales = torch.tensor([[0.2, 0.01, 0.3], [0.5, 0.4, 0.1]])
+    assert float(flatness(scales, scene_scale=2.0)) == pytest.approx((0.01 + 0.1) / 2 / 2.0)
+
+
+def geometry_of_a_short_run(scene, out, **weights):
+    """Opacity entropy and the smallest scale over the scale of its splats after a short run."""
+    train(scene, out=out, steps=40, eval_every=40, initial_splats=300, progress=False, **weights)
+    gaussians = torch.load(out / "checkpoints" / "last.pt", weights_only=True)["model"]
+    opacities = torch.sigmoid(gaussians["opacity_logits"])
+    scales = torch.exp(gaussians["log_scales"]).sort(dim=1).values
+    return float(opacity_entropy(opacities)), float((scales[:, 0] / scales[:, 1]).median())
+
+
+def test_the_geometry_terms_make_splats_opaque_or_gone_and_flat(tiny_scene, tmp_path):
+    # The cube's images have alpha, so the terms are on by default; weights far above the
+    # defaults make 40 steps enough to see them act.
+    off = geometry_of_a_short_run(tiny_scene, tmp_path / "off", opacity_entropy=0.0, flatness=0.0)
+    on = geometry_of_a_short_run(tiny_scene, tmp_path / "on", opacity_entropy=1.0, flatness=50.0)
+    assert on[0] < 0.8 * off[0], f"opacity entropy {on[0]:.3f} with the term, {off[0]:.3f} without"
+    assert on[1] < 0.8 * off[1], f"smallest / middle scale {on[1]:.3f} with the term, {off[1]:.3f} without"
 
 
 def _training_steps(gaussians, optimizer, strategy, steps):

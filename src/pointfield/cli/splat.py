@@ -45,6 +45,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--alpha-loss", type=float, default=None, metavar="WEIGHT",
                        help="weight of |rendered opacity - alpha| in the loss where the images have alpha "
                             "(default 0.1; 0: off)")
+    train.add_argument("--opacity-entropy", type=float, default=None, metavar="WEIGHT",
+                       help="weight of the splats' mean opacity entropy in the loss where the images have alpha: "
+                            "splats opaque or gone (default 0.01; 0: off)")
+    train.add_argument("--flatness", type=float, default=None, metavar="WEIGHT",
+                       help="weight of the splats' mean smallest scale in the loss where the images have alpha: "
+                            "discs along surfaces (default 1; 0: off)")
     train.add_argument("--max-splats", type=int, default=DEFAULT_MAX_SPLATS,
                        help=f"densification never grows beyond this many splats (default {DEFAULT_MAX_SPLATS:,})")
     train.add_argument("--initial-splats", type=int, default=20_000,
@@ -104,7 +110,8 @@ def run_train(args: argparse.Namespace) -> int:
     with training_view(args):
         metrics = train(
             args.scene, out=args.out, steps=args.steps, max_time=args.max_time, downscale=args.downscale,
-            holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss, device=args.device,
+            holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss,
+            opacity_entropy=args.opacity_entropy, flatness=args.flatness, device=args.device,
             seed=args.seed,
             resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,
             init=args.init, eval_every=args.eval_every, progress=args.progress,

@@ -17,7 +17,9 @@ twentieth of it for the higher bands). Where the images have alpha (objects on a
 background), ``0.1 mean |rendered opacity - alpha|`` is added, so that no splat haze lingers in
 empty space and no surface the colour of the background turns transparent (as for the fields:
 :mod:`pointfield.training.opacity`; a random background per image instead cost 0.7 dB on the
-synthetic cube).
+synthetic cube), and so are ``0.01`` x the splats' mean opacity entropy and ``1`` x their mean
+smallest scale over the scene scale, which make splats opaque discs on the surface rather than
+faint blobs filling a solid object (:mod:`pointfield.splats.loss`; geometry from depth).
 :class:`~pointfield.splats.densification.DefaultStrategy` grows and prunes the splats from step 500 to half the run, never beyond ``max_splats``.
 
 :class:`SplatTask` is this recipe as the one training lifecycle (:mod:`pointfield.training`)
@@ -53,7 +55,13 @@ from pointfield.scenes.paths import scene_centre_and_up
 from pointfield.scenes.scene import Scene
 from pointfield.splats.densification import DefaultStrategy
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
-from pointfield.splats.loss import splat_loss
+from pointfield.splats.loss import (
+    DEFAULT_FLATNESS,
+    DEFAULT_OPACITY_ENTROPY,
+    flatness,
+    opacity_entropy,
+    splat_loss,
+)
 from pointfield.splats.run import (
     TASK,
     camera_matrices,
@@ -141,6 +149,8 @@ class SplatTask(Task):
             "eval_every": int(settings["eval_every"] or 250),
             "eval_views": int(settings["eval_views"]),
             "alpha_loss": settings.get("alpha_loss"),
+            "opacity_entropy": settings.get("opacity_entropy"),
+            "flatness": settings.get("flatness"),
         }
         if min(config["steps"], config["max_splats"], config["initial_splats"], config["eval_every"]) < 1:
             raise PointfieldError("--steps, --max-splats and --eval-every must be positive")
@@ -180,6 +190,11 @@ class SplatTask(Task):
         self.alpha_loss = alpha_loss_weight(config.get("alpha_loss"), self.scene, self.train_frames)
         self.alphas = ({int(i): torch.from_numpy(self.scene.alpha(int(i))).to(device) for i in self.train_frames}
                        if self.alpha_loss else {})
+        # The geometry terms, also where the images have alpha. A run made before they existed
+        # has no such keys: it resumes without them.
+        self.opacity_entropy = alpha_loss_weight(config.get("opacity_entropy", 0.0), self.scene, self.train_frames,
+                                                 DEFAULT_OPACITY_ENTROPY)
+        self.flatness = alpha_loss_weight(config.get("flatness", 0.0), self.scene, self.train_frames, DEFAULT_FLATNESS)
         self.epochs = math.ceil(total / config["eval_every"])
         self.evaluated = self.heldout_frames[: max(1, config["eval_views"])]
         self.identity = {"task": TASK, "sh_degree": gaussians.sh_degree}
@@ -225,6 +240,10 @@ class SplatTask(Task):
         loss = splat_loss(rendered, target)
         if self.alpha_loss:
             loss = loss + self.alpha_loss * (alphas[0] - self.alphas[view]).abs().mean()
+        if self.opacity_entropy:
+            loss = loss + self.opacity_entropy * opacity_entropy(gaussians.opacities)
+        if self.flatness:
+            loss = loss + self.flatness * flatness(gaussians.scales, self.strategy.scene_scale)
         return Step(loss,
                     {"psnr": psnr_from_mse(mse), "splats": float(len(gaussians))})
 
@@ -254,6 +273,8 @@ def train(
     holdout_every: int | None = None,
     background: str | None = None,
     alpha_loss: float | None = None,
+    opacity_entropy: float | None = None,
+    flatness: float | None = None,
     device: str | None = None,
     seed: int = 0,
     resume: bool = False,
@@ -273,12 +294,15 @@ def train(
     views are scored. ``max_splats`` (default 200,000) caps densification (a message says when
     it bites). ``alpha_loss``: weight of the mean absolute difference between rendered opacity
     and the images' alpha, added to the loss where the images have alpha (default 0.1; 0 turns
-    it off). Resuming, only ``steps`` and ``max_splats`` may change. Returns the final metrics
+    it off). ``opacity_entropy`` and ``flatness``: weights of the geometry terms of
+    :mod:`pointfield.splats.loss`, also where the images have alpha (defaults 0.01 and 1; 0
+    turns each off). Resuming, only ``steps`` and ``max_splats`` may change. Returns the final metrics
     (also in ``out/metrics.json``).
     """
     settings = {
         "scene": scene, "steps": steps, "downscale": downscale, "holdout_every": holdout_every,
-        "background": background, "alpha_loss": alpha_loss, "seed": seed,
+        "background": background, "alpha_loss": alpha_loss, "opacity_entropy": opacity_entropy,
+        "flatness": flatness, "seed": seed,
         "max_splats": max_splats, "initial_splats": initial_splats, "init": init,
         "eval_every": eval_every, "eval_views": eval_views, "cube_views": cube_views, "cube_size": cube_size,
     }
