@@ -62,8 +62,7 @@ def geometry_of_a_short_run(scene, out, **weights):
 
 
 def test_the_geometry_terms_make_splats_opaque_or_gone_and_flat(tiny_scene, tmp_path):
-    # The cube's images have alpha, so the terms are on by default; weights far above the
-    # defaults make 40 steps enough to see them act.
+    # Weights far above the measured ones make 40 steps enough to see the terms act.
     off = geometry_of_a_short_run(tiny_scene, tmp_path / "off", opacity_entropy=0.0, flatness=0.0)
     on = geometry_of_a_short_run(tiny_scene, tmp_path / "on", opacity_entropy=1.0, flatness=50.0)
     assert on[0] < 0.8 * off[0], f"opacity entropy {on[0]:.3f} with the term, {off[0]:.3f} without"

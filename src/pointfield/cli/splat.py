@@ -46,11 +46,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                        help="weight of |rendered opacity - alpha| in the loss where the images have alpha "
                             "(default 0.1; 0: off)")
     train.add_argument("--opacity-entropy", type=float, default=None, metavar="WEIGHT",
-                       help="weight of the splats' mean opacity entropy in the loss where the images have alpha: "
-                            "splats opaque or gone (default 0.01; 0: off)")
+                       help="weight of the splats' mean opacity entropy in the loss: splats opaque or gone, "
+                            "for geometry export (default off; 0.01 measured, see docs/geometry.md)")
     train.add_argument("--flatness", type=float, default=None, metavar="WEIGHT",
-                       help="weight of the splats' mean smallest scale in the loss where the images have alpha: "
-                            "discs along surfaces (default 1; 0: off)")
+                       help="weight of the splats' mean smallest scale in the loss: discs along surfaces, "
+                            "for geometry export (default off; 1 measured)")
     train.add_argument("--max-splats", type=int, default=DEFAULT_MAX_SPLATS,
                        help=f"densification never grows beyond this many splats (default {DEFAULT_MAX_SPLATS:,})")
     train.add_argument("--initial-splats", type=int, default=20_000,

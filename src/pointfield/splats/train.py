@@ -17,9 +17,10 @@ twentieth of it for the higher bands). Where the images have alpha (objects on a
 background), ``0.1 mean |rendered opacity - alpha|`` is added, so that no splat haze lingers in
 empty space and no surface the colour of the background turns transparent (as for the fields:
 :mod:`pointfield.training.opacity`; a random background per image instead cost 0.7 dB on the
-synthetic cube), and so are ``0.01`` x the splats' mean opacity entropy and ``1`` x their mean
-smallest scale over the scene scale, which make splats opaque discs on the surface rather than
-faint blobs filling a solid object (:mod:`pointfield.splats.loss`; geometry from depth).
+synthetic cube). Asked for (``opacity_entropy``, ``flatness``), the splats' mean opacity entropy
+and their mean smallest scale over the scene scale are added too, which make splats opaque discs
+on the surface rather than faint blobs filling a solid object: better geometry from depth, at a
+cost in PSNR (:mod:`pointfield.splats.loss`).
 :class:`~pointfield.splats.densification.DefaultStrategy` grows and prunes the splats from step 500 to half the run, never beyond ``max_splats``.
 
 :class:`SplatTask` is this recipe as the one training lifecycle (:mod:`pointfield.training`)
@@ -55,13 +56,7 @@ from pointfield.scenes.paths import scene_centre_and_up
 from pointfield.scenes.scene import Scene
 from pointfield.splats.densification import DefaultStrategy
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
-from pointfield.splats.loss import (
-    DEFAULT_FLATNESS,
-    DEFAULT_OPACITY_ENTROPY,
-    flatness,
-    opacity_entropy,
-    splat_loss,
-)
+from pointfield.splats.loss import flatness, opacity_entropy, splat_loss
 from pointfield.splats.run import (
     TASK,
     camera_matrices,
@@ -190,11 +185,9 @@ class SplatTask(Task):
         self.alpha_loss = alpha_loss_weight(config.get("alpha_loss"), self.scene, self.train_frames)
         self.alphas = ({int(i): torch.from_numpy(self.scene.alpha(int(i))).to(device) for i in self.train_frames}
                        if self.alpha_loss else {})
-        # The geometry terms, also where the images have alpha. A run made before they existed
-        # has no such keys: it resumes without them.
-        self.opacity_entropy = alpha_loss_weight(config.get("opacity_entropy", 0.0), self.scene, self.train_frames,
-                                                 DEFAULT_OPACITY_ENTROPY)
-        self.flatness = alpha_loss_weight(config.get("flatness", 0.0), self.scene, self.train_frames, DEFAULT_FLATNESS)
+        # The geometry terms, where asked for (a run made before they existed has no such keys).
+        self.opacity_entropy = float(config.get("opacity_entropy") or 0.0)
+        self.flatness = float(config.get("flatness") or 0.0)
         self.epochs = math.ceil(total / config["eval_every"])
         self.evaluated = self.heldout_frames[: max(1, config["eval_views"])]
         self.identity = {"task": TASK, "sh_degree": gaussians.sh_degree}
@@ -295,8 +288,8 @@ def train(
     it bites). ``alpha_loss``: weight of the mean absolute difference between rendered opacity
     and the images' alpha, added to the loss where the images have alpha (default 0.1; 0 turns
     it off). ``opacity_entropy`` and ``flatness``: weights of the geometry terms of
-    :mod:`pointfield.splats.loss`, also where the images have alpha (defaults 0.01 and 1; 0
-    turns each off). Resuming, only ``steps`` and ``max_splats`` may change. Returns the final metrics
+    :mod:`pointfield.splats.loss` (default off; ``GEOMETRY_WEIGHTS`` there are the ones
+    measured). Resuming, only ``steps`` and ``max_splats`` may change. Returns the final metrics
     (also in ``out/metrics.json``).
     """
     settings = {

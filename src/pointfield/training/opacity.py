@@ -36,8 +36,7 @@ def has_alpha(scene: Scene, frames) -> bool:
 
 
 def alpha_loss_weight(setting: float | None, scene: Scene, frames, default: float = DEFAULT_ALPHA_LOSS) -> float:
-    """The weight of an opacity term (the alpha loss, by default): ``setting`` (None: ``default``)
-    where the training images have alpha, else 0."""
+    """The alpha loss's weight: ``setting`` (None: ``default``) where the training images have alpha, else 0."""
     if not has_alpha(scene, frames):
         return 0.0
     return float(default if setting is None else setting)
