@@ -280,7 +280,6 @@ class VoxelAccumulator:
         starts = np.ones(n, bool)
         starts[1:] = sorted_keys[1:] != sorted_keys[:-1]
         unique = sorted_keys[starts]
-        counts = np.diff(np.append(np.flatnonzero(starts), n))
         group = np.empty(n, np.int64)  # each point's position in ``unique``
         group[order] = np.cumsum(starts) - 1
 
@@ -310,7 +309,7 @@ class VoxelAccumulator:
             for name in self.specs:
                 if name not in self.mean_fields:
                     state[f"value:{name}"][new_slots] = cloud.fields[name][new_first]
-            state["count"][slot] += counts
+            state["count"][slot] += np.diff(np.append(np.flatnonzero(starts), n))
             slots = slot[group]
             for axis in range(3):
                 np.add.at(state[f"sum#{axis}"], slots, points[:, axis])
