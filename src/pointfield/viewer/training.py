@@ -86,8 +86,6 @@ class TrainingView:
         self._last: tuple[TrainingState, float] | None = None
         self.threads_before: int | None = None
         """torch's threads before one was left to a local browser; None while none was."""
-        self.threads_watched: int | None = None
-        """torch's threads training used once one was left to the browser."""
         self._threads_owner: int | None = None
         gui = viewer.server.gui
         with gui.add_folder("training"):
@@ -147,10 +145,14 @@ class TrainingView:
         self._report(state, loss)
         return time.perf_counter() - paused_at
 
+    @property
+    def threads_watched(self) -> int | None:
+        """torch's threads training uses once one is left to the browser; None while none is."""
+        return None if self.threads_before is None else max(1, self.threads_before - 1)
+
     def _leave_a_thread(self) -> None:
         """One torch thread fewer for training, in the training thread (the setting is per thread)."""
         self.threads_before = torch.get_num_threads()
-        self.threads_watched = max(1, self.threads_before - 1)
         self._threads_owner = threading.get_ident()
         torch.set_num_threads(self.threads_watched)
 
