@@ -3,9 +3,10 @@
 A streaming verb alternates between two kinds of work: decompressing and converting a window
 of points (lazrs and numpy, which release the GIL) and reducing it (numpy sorts and scatters).
 One after the other, a 2-core machine has a core idle during the reduction. With one window
-read ahead in a thread, the two overlap: ``cloud downsample --voxel`` of the 20 M-point LAZ of
-``benchmarks/bench_streaming.py`` took 13.3 and 14.5 s with it, 16.6 and 15.3 s without (one
-session, alternating runs). The window read ahead is one more in flight, which
+read ahead in a thread, the two overlap: ``cloud downsample --voxel 1 --memory 2G`` of the
+20 M-point LAZ of ``benchmarks/bench_streaming.py`` took 13.3 and 14.5 s with it, 16.6 and
+15.3 s without (timed by hand with ``/usr/bin/time``, runs alternating; the benchmark itself
+measures the whole against laspy and open3d, not this part). The window read ahead is one more in flight, which
 :data:`~pointfield.streaming.memory.CHUNK_COPIES` counts.
 """
 
