@@ -7,7 +7,9 @@ For each scene made by ``scene make`` (analytic surfaces, so the true surface is
 (:func:`pointfield.geometry.export_cloud`) are exported and scored against the truth
 (:mod:`pointfield.geometry.compare`: Chamfer = mean of accuracy and completeness, as in the DTU
 protocol; F-score at 1 % of the true bounding-box diagonal, k-d trees; a mesh is scored through
-``--mesh-samples`` uniform samples of its surface). Beside them, same run:
+``--mesh-samples`` uniform samples of its surface), and so are the other meshes a user can ask
+for: TSDF of the median depth (``depth="median"``) and, for the field, marching cubes on its
+density at instant-ngp's level (``method="density"``). Beside them, same run:
 
 - **ceiling**: TSDF fusion of the scene's exact depth maps of the same training views (what the
   method gives with perfect depth);
@@ -255,9 +257,24 @@ def main() -> int:
             peer_scores = scored(sample_mesh(peer, args.mesh_samples))
             record.figures[f"{name}/{model}/open3d mesh"] = {**peer_scores, "seconds": peer_seconds}
             rows.append(score_row(name, model, "mesh (open3d VoxelBlockGrid, same depth)", peer_scores, peer_seconds))
+            # The other meshes a user can ask for: TSDF of the median depth, and (bounded fields)
+            # marching cubes on the density.
+            others = {"mesh, median depth": {"depth": "median"}}
+            if model == "ngp":
+                others["mesh, density"] = {"method": "density"}
+            other_scores = {}
+            for output, options in others.items():
+                other_file = args.out / f"{name}-{model}-{output.replace(', ', '-').replace(' ', '-')}.ply"
+                started = time.perf_counter()
+                export_mesh(run, other_file, resolution=args.resolution, progress=False, **options)
+                other_seconds = time.perf_counter() - started
+                other_scores[output] = scored(sample_mesh(read(other_file), args.mesh_samples))
+                record.figures[f"{name}/{model}/{output}"] = {**other_scores[output], "seconds": other_seconds}
+                rows.append(score_row(name, model, output, other_scores[output], other_seconds))
+                render_picture(other_file, other_file.with_suffix(".png"))
             for kind, path in (("mesh", mesh_file), ("cloud", cloud_file)):
                 render_picture(path, args.out / f"{name}-{model}-{kind}.png")
-            for kind, scores in (("mesh", mesh_scores), ("cloud", cloud_scores)):
+            for kind, scores in (("mesh", mesh_scores), ("cloud", cloud_scores), *other_scores.items()):
                 record.verdict(f"{name} {model} {kind}: Chamfer <= {100 * GOAL_CHAMFER:.1f} % of the diagonal, "
                                f"F-score >= {GOAL_FSCORE}",
                                scores["chamfer_relative"] <= GOAL_CHAMFER and scores["fscore"] >= GOAL_FSCORE,

@@ -108,3 +108,24 @@ def test_splat_depth_is_the_distance_along_the_ray_like_every_scene_models():
     np.testing.assert_allclose(view["depth"][covered].numpy(), distance_to_wall[covered].numpy(), rtol=2e-3)
     corner = rays.axis_cosine[0, 0]
     assert corner < 0.8  # the test means something: corner rays are far off the axis
+
+
+def test_median_depth_is_asked_for_by_name_and_used_in_place_of_the_expected(splat_run, tmp_path):
+    import pointfield
+    from pointfield.geometry.clouds import cameras_of, render_views
+
+    run = pointfield.load_run(splat_run)
+    cameras = cameras_of(run, "dataset", 2)
+    expected, median = render_views(run, cameras, False), render_views(run, cameras, False, depth="median")
+    truth = run.render(cameras[[1]], outputs=("median_depth",))[0]["median_depth"]
+    torch.testing.assert_close(median[1]["depth"], truth)
+    torch.testing.assert_close(median[1]["rgb"], expected[1]["rgb"])
+    seen = expected[1]["opacity"] > 0.5
+    assert not torch.allclose(median[1]["depth"][seen], expected[1]["depth"][seen])  # two different depths
+    out = tmp_path / "median.ply"
+    assert main(["splat", "export", str(splat_run), "--cloud", str(out), "--depth", "median",
+                 "--min-opacity", "0.05", "--no-progress"]) == 0
+    assert len(read(out).points) > 100
+    with pytest.raises(PointfieldError, match="depth must be one of expected, median"):
+        export_cloud(run, tmp_path / "x.ply", depth="mean", progress=False)
+    assert not (tmp_path / "x.ply").exists()

@@ -31,6 +31,9 @@ def add_cloud_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--points", type=int, help="thin the cloud to this many points (farthest point sampling)")
     parser.add_argument("--min-opacity", type=float, default=0.5,
                         help="pixels less opaque than this give no point (default 0.5)")
+    parser.add_argument("--depth", choices=("expected", "median"), default="expected",
+                        help="the rendered depth used: expected (default; the opacity-weighted mean) or median "
+                        "(where the opacity passes 0.5: no blend of a surface with what lies behind it)")
     parser.add_argument("--crop", type=float, nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
                         help="keep only points inside this box")
     parser.add_argument("--outlier-neighbours", type=int, default=16,
@@ -48,11 +51,12 @@ def export_geometry_of(args: argparse.Namespace) -> None:
     if args.mesh is not None and args.cloud is not None and args.method == "tsdf":
         # Both start from the same renders of the same cameras, most of an export's time: render once.
         run = open_scene_run(args.run_dir, args.device)
-        views = render_views(run, cameras_of(run, args.path, args.frames), args.progress)
+        views = render_views(run, cameras_of(run, args.path, args.frames), args.progress, depth=args.depth)
     if args.mesh is not None:
         result = export_mesh(
             run, args.mesh, resolution=args.resolution, method=args.method, threshold=args.threshold,
-            path=args.path, frames=args.frames, min_opacity=args.min_opacity, crop=args.crop, faces=args.faces,
+            path=args.path, frames=args.frames, min_opacity=args.min_opacity, depth=args.depth, crop=args.crop,
+            faces=args.faces,
             device=args.device, progress=args.progress, views=views,
         )
         grid = "x".join(map(str, result["grid"]))
@@ -62,7 +66,7 @@ def export_geometry_of(args: argparse.Namespace) -> None:
     if args.cloud is None:
         return
     result = export_cloud(
-        run, args.cloud, path=args.path, frames=args.frames, min_opacity=args.min_opacity,
+        run, args.cloud, path=args.path, frames=args.frames, min_opacity=args.min_opacity, depth=args.depth,
         crop=args.crop, points=args.points, outlier_neighbours=args.outlier_neighbours, device=args.device,
         progress=args.progress, views=views,
     )

@@ -4,11 +4,15 @@ Built on the one run interface (``load_run(path).render(cameras)``), so it works
 TinyNeRF, NeRF, the hash-grid field and splats. For each camera of a path (the training views by
 default) every pixel with opacity of at least ``min_opacity`` becomes a point::
 
-    p = o + t d          o, d: the pixel's ray (unit d); t: the rendered expected depth
+    p = o + t d          o, d: the pixel's ray (unit d); t: the rendered depth (``depth``)
     colour = the rendered colour;  normal = (dP/dx) x (dP/dy), turned to face the camera
 
 where ``dP/dx``, ``dP/dy`` are central differences of the back-projected points between the
-pixel's neighbours (pixels whose four neighbours are not all kept get no normal: NaN). Then the
+pixel's neighbours (pixels whose four neighbours are not all kept get no normal: NaN). ``depth``
+is "expected" (the opacity-weighted mean distance along the ray, the default) or "median" (where
+the accumulated opacity passes 0.5): at a silhouette or behind a thin haze the expected depth
+blends the surface with what lies behind it, the median picks one (docs/geometry.md measures
+both). Then the
 cloud is cropped to a box (optional), stray points in empty space are dropped by a statistical
 test (:func:`pointfield.clouds.ops.statistical_inliers`) and, with ``points``, thinned to that
 many by farthest point sampling. The cloud is written in any format pointfield writes.
@@ -27,6 +31,9 @@ from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.ops import farthest_point_sample, statistical_inliers
 from pointfield.errors import PointfieldError
 from pointfield.scenes.cameras import Cameras
+
+DEPTHS = ("expected", "median")
+"""The rendered depth geometry is made from (module docstring)."""
 
 PATHS = ("dataset", "orbit", "spiral")
 
@@ -103,6 +110,7 @@ def export_cloud(
     path: str = "dataset",
     frames: int | None = None,
     min_opacity: float = 0.5,
+    depth: str = "expected",
     crop: Sequence[float] | None = None,
     points: int | None = None,
     outlier_neighbours: int = 16,
@@ -123,7 +131,7 @@ def export_cloud(
 
     scene_run = open_scene_run(run, device)
     cameras = cameras_of(scene_run, path, frames)
-    views = render_views(scene_run, cameras, progress, given=views)
+    views = render_views(scene_run, cameras, progress, given=views, depth=depth)
     cloud = cloud_from_views(views, cameras, min_opacity)
     rendered = len(cloud.points)
     if rendered == 0:
@@ -140,12 +148,16 @@ def export_cloud(
 
 
 def render_views(scene_run, cameras, progress: bool = True,
-                 given: list[dict[str, torch.Tensor]] | None = None) -> list[dict[str, torch.Tensor]]:
-    """The run's ``rgb`` (H, W, 3), expected ``depth`` and ``opacity`` (H, W) from every camera, one
-    camera at a time: what both exports start from, and most of their time. ``given``: renders
-    the caller already has, returned as they are (one per camera, or a ValueError)."""
+                 given: list[dict[str, torch.Tensor]] | None = None,
+                 depth: str = "expected") -> list[dict[str, torch.Tensor]]:
+    """The run's ``rgb`` (H, W, 3), ``depth`` (the ``depth`` of :data:`DEPTHS`) and ``opacity``
+    (H, W) from every camera, one camera at a time: what both exports start from, and most of
+    their time. ``given``: renders the caller already has, returned as they are (one per camera,
+    or a ValueError)."""
     from tqdm.auto import tqdm
 
+    if depth not in DEPTHS:
+        raise PointfieldError(f"depth must be one of {', '.join(DEPTHS)}, got {depth!r}")
     if given is not None:
         if len(given) != len(cameras):
             raise ValueError(f"{len(given)} rendered views for {len(cameras)} cameras")
@@ -153,7 +165,11 @@ def render_views(scene_run, cameras, progress: bool = True,
 
     views = []
     for index in tqdm(range(len(cameras)), desc="rendering", unit="view", disable=not progress):
-        views.extend(scene_run.render(cameras[[index]], outputs=("rgb", "depth", "opacity")))
+        if depth == "expected":
+            views.extend(scene_run.render(cameras[[index]], outputs=("rgb", "depth", "opacity")))
+        else:
+            view = scene_run.render(cameras[[index]], outputs=("rgb", "median_depth", "opacity"))[0]
+            views.append({"rgb": view["rgb"], "depth": view["median_depth"], "opacity": view["opacity"]})
     return views
 
 

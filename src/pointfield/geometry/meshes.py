@@ -128,6 +128,7 @@ def export_mesh(
     path: str = "dataset",
     frames: int | None = None,
     min_opacity: float = 0.5,
+    depth: str = "expected",
     crop: Sequence[float] | None = None,
     faces: int | None = None,
     min_component: float = 0.01,
@@ -144,8 +145,9 @@ def export_mesh(
 
     ``method``: "tsdf" (default) fuses rendered depth; "density" meshes a bounded field run's
     density at ``threshold`` (default :func:`~pointfield.geometry.density.default_threshold`),
-    and ignores the rendering options (``path``, ``frames``, ``min_opacity``,
-    ``truncation_voxels``). Raises :class:`PointfieldError` for a run that is not a scene run
+    and ignores the rendering options (``path``, ``frames``, ``min_opacity``, ``depth``,
+    ``truncation_voxels``). ``depth``: "expected" or "median", as for
+    :func:`~pointfield.geometry.export_cloud`. Raises :class:`PointfieldError` for a run that is not a scene run
     (or, for "density", not a bounded field run), a grid too large for ``memory_limit`` bytes
     (default: half the machine's memory; the message says how much it would need and what
     resolution fits), and a result with no surface.
@@ -181,7 +183,7 @@ def export_mesh(
         low, high, resolution, truncation_voxels=truncation_voxels, device=scene_run.device,
         memory_limit=memory_limit if memory_limit is not None else _default_memory_limit(),
     )
-    depth_maps = rendered_depth_maps(scene_run, cameras, min_opacity, progress, views)
+    depth_maps = rendered_depth_maps(scene_run, cameras, min_opacity, progress, views, depth)
     fuse(volume, depth_maps, cameras)
     mesh = mesh_from_volume(volume, min_component)
     fused_faces = len(mesh.faces)
@@ -221,11 +223,12 @@ def _export_density_mesh(scene_run, out: Path, *, resolution, threshold, crop, f
 
 
 def rendered_depth_maps(scene_run, cameras, min_opacity: float = 0.5, progress: bool = True,
-                        views: list[dict[str, torch.Tensor]] | None = None) -> list[tuple[torch.Tensor, torch.Tensor]]:
+                        views: list[dict[str, torch.Tensor]] | None = None,
+                        depth: str = "expected") -> list[tuple[torch.Tensor, torch.Tensor]]:
     """``[(z-depth (H, W), colour (H, W, 3))]`` of every camera as the run renders it; 0 depth where
     the opacity is below ``min_opacity`` (what TSDF fusion takes). ``views``: the renders, when
     already made (:func:`~pointfield.geometry.clouds.render_views`)."""
-    rendered = render_views(scene_run, cameras, progress, given=views)
+    rendered = render_views(scene_run, cameras, progress, given=views, depth=depth)
     views = []
     for index, view in enumerate(rendered):
         rays = cameras.rays(index)
