@@ -6,7 +6,8 @@ loss and the reported metric cannot drift apart.
 The geometry terms, :func:`opacity_entropy` and :func:`flatness`, are off unless asked for
 (``--opacity-entropy``, ``--flatness``; ``GEOMETRY_WEIGHTS`` are the weights measured): they
 trade appearance for geometry. On lego, ``make bench-geometry`` (benchmarks/RESULTS.md, 300 s
-each, same run) gave 29.47 dB held out with them against 31.25 dB without; what they gain on
+each, same run) gave 29.47 dB held out with them against 31.25 dB without, and in the next run
+29.80 against 30.46 dB; what they gain on
 the cube's mesh and cloud is in docs/geometry.md ("Accuracy against known surfaces").
 """
 
