@@ -306,3 +306,22 @@ def test_cuda_renders_and_differentiates_like_the_cpu():
                            *(tensor.grad.cpu() for tensor in inputs)]
     for on_cpu, on_cuda in zip(results["cpu"], results["cuda"]):
         torch.testing.assert_close(on_cuda, on_cpu, atol=1e-4, rtol=1e-3)
+
+
+def test_rendering_a_model_whose_splat_count_changes_compiles_the_projection_once():
+    # Densification changes the count every few hundred steps, and evaluation renders the model's
+    # nn.Parameters: compiled per count, the projection would fall back to eager after
+    # RECOMPILE_LIMIT counts (and pay a compile at each one before that).
+    if not compiler_available(torch.device("cpu")):
+        pytest.skip("no C++ compiler here for torch.compile")
+    from torch._dynamo.utils import counters
+
+    viewmats, Ks = cameras(1)
+    graphs = []
+    for count in (30, 35, 41, 47, 55):
+        means, quats, scales, opacities = (torch.nn.Parameter(t[:count]) for t in needles_and_blobs(4))
+        with torch.no_grad():
+            rasterization(means, quats, scales, opacities, torch.rand(count, 3, dtype=means.dtype), viewmats, Ks,
+                          32, 32, backend="compiled")
+        graphs.append(counters["stats"]["unique_graphs"])
+    assert graphs[-1] - graphs[0] <= 1  # the first count compiles (if nothing before did); the rest reuse it

@@ -242,6 +242,11 @@ def rasterization(
     fused = backend if not differentiable else "eager"
     if max_block_elements is None:
         max_block_elements = BLOCK_ELEMENTS if differentiable else BLOCK_ELEMENTS_NO_GRAD
+    if not differentiable:
+        # Plain tensors, not the model's nn.Parameters: dynamo keeps a parameter's shape static,
+        # so every change of the splat count (densification) would compile the projection again,
+        # and past RECOMPILE_LIMIT of them it would run eagerly for good.
+        means, quats, scales = means.detach(), quats.detach(), scales.detach()
     projections = [
         _FUSED_PROJECT(fused, means.device, means, quats, scales, viewmats[i], Ks[i], width, height,
                        near_plane, far_plane)
