@@ -310,6 +310,15 @@ def test_a_scene_with_a_test_split_is_not_held_out_again(shared_data):
     assert "--holdout-every" not in answer.commands[0]
 
 
+def test_an_object_is_meshed_from_its_density_and_a_real_capture_from_fused_depth(shared_data):
+    lego = route(shared_data / "nerf/lego_blender", task="mesh")
+    assert lego.commands[-1] == ("pointfield nerf export runs/lego_blender --mesh lego_blender.glb --faces 200000 "
+                                 "--method density")
+    assert "density" in lego.reason
+    fox = route(shared_data / "nerf/fox_instant_ngp", task="mesh")
+    assert fox.commands[-1] == "pointfield nerf export runs/fox_instant_ngp --mesh fox_instant_ngp.glb --faces 200000"
+
+
 def test_splats_are_viewed_as_they_are_and_meshed_from_their_run(shared_data):
     path = shared_data / "gaussians/3dgs_point_cloud_iter7000.ply"
     assert route(path).representation == "Gaussian splats"

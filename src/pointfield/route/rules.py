@@ -361,13 +361,17 @@ def _captured(given: Input, task: str | None) -> Plan:
                     [*steps, splats, _pf("splat", "render", splat_run, "--path", "orbit", "--out", f"{name}.gif")],
                     notes=notes)
     if task == "mesh":
+        mesh = ("nerf", "export", run, "--mesh", f"{name}.glb", "--faces", MESH_FACES)
         if capture.object:
-            notes.append("an object in a box: --method density meshes the field's density directly, without "
-                         "rendering views (0.7 s against 7 s for TSDF fusion on the test cube)")
+            # An object in a box: marching cubes on the field's own density, no views rendered.
+            return Plan(MESH, "A game engine wants triangles: train the hash-grid field, then mesh its density "
+                        "(marching cubes), decimated and coloured, written as GLB: for an object in a box this is "
+                        "closer to the true surface than fused depth (0.14 % against 0.60 % of the diagonal, "
+                        "Chamfer, on the geometry benchmark's cube) and faster (6 s against 34 s)",
+                        [*steps, ngp, _pf(*mesh, "--method", "density")], notes=notes)
         return Plan(MESH, "A game engine wants triangles: train the hash-grid field, then fuse its rendered depth "
                     "into a decimated, coloured mesh (TSDF, marching cubes) written as GLB",
-                    [*steps, ngp, _pf("nerf", "export", run, "--mesh", f"{name}.glb", "--faces", MESH_FACES)],
-                    notes=notes)
+                    [*steps, ngp, _pf(*mesh)], notes=notes)
     export = _pf("nerf", "export", run, "--cloud", cloud)
     if task == "measure":
         notes.append("poses from structure from motion (and most datasets' poses) fix the scene only up to scale: "
