@@ -256,7 +256,7 @@ def next_steps(out_dir: Path, scene: SceneDemo | None) -> str:
         lines += [f"  {picture}" for picture in scene.pictures]
         commands += [
             f"pointfield view {scene.runs['splats']} {scene.mesh}   turn them around in the browser",
-            f"pointfield nerf export {scene.runs['ngp']} --mesh mesh.glb --faces 20000",
+            f"pointfield nerf export {scene.runs['ngp']} --mesh mesh.glb --faces 20000 --method density   an object's field, meshed from its density",
             "pointfield scene make still-life --out still-life && pointfield splat train still-life --max-time 300",
             "pointfield route PATH --task 'mesh for a game engine'   which representation fits your data",
         ]
