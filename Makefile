@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-streaming bench-viewer clean
+.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-streaming bench-viewer bench-browser-cost clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -42,7 +42,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-ptx bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-streaming bench-viewer
+bench: bench-formats bench-fuzz bench-ptx bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-streaming bench-viewer bench-browser-cost
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -93,6 +93,10 @@ bench-sfm: $(BIN)/.colmap
 
 bench-viewer: $(BIN)/.chromium
 	$(BIN)/python benchmarks/bench_viewer.py
+
+# What one viewer page costs the browser drawing it (software WebGL on this CPU): why --view slows training here.
+bench-browser-cost: $(BIN)/.chromium
+	$(BIN)/python benchmarks/bench_browser_cost.py
 
 # TinyNeRF, the hash-grid field and splats on lego in one run (about 45 minutes on 2 cores).
 bench-lego: $(BIN)/.installed
