@@ -163,13 +163,11 @@ def render_views(scene_run, cameras, progress: bool = True,
             raise ValueError(f"{len(given)} rendered views for {len(cameras)} cameras")
         return given
 
+    rendered = "depth" if depth == "expected" else "median_depth"  # the run's output of that name
     views = []
     for index in tqdm(range(len(cameras)), desc="rendering", unit="view", disable=not progress):
-        if depth == "expected":
-            views.extend(scene_run.render(cameras[[index]], outputs=("rgb", "depth", "opacity")))
-        else:
-            view = scene_run.render(cameras[[index]], outputs=("rgb", "median_depth", "opacity"))[0]
-            views.append({"rgb": view["rgb"], "depth": view["median_depth"], "opacity": view["opacity"]})
+        view = scene_run.render(cameras[[index]], outputs=("rgb", rendered, "opacity"))[0]
+        views.append({"rgb": view["rgb"], "depth": view[rendered], "opacity": view["opacity"]})
     return views
 
 

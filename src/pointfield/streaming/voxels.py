@@ -174,8 +174,8 @@ class VoxelAccumulator:
 
     ``template`` gives the fields and dtypes; ``mode`` is ``"centroid"`` or ``"nearest"``;
     ``state_bytes``, the state's share of a memory budget, stops its arrays growing ahead of need
-    past that share. State lives in arrays indexed by a *slot* per voxel, in the order voxels were first seen;
-    ``keys`` / ``slots`` is a sorted index from voxel key to slot.
+    past that share. State lives in arrays indexed by a *slot* per voxel, in the order voxels
+    were first seen; ``keys`` / ``slots`` is a sorted index from voxel key to slot.
     """
 
     def __init__(self, template: PointCloud, mode: str = "centroid", state_bytes: int | None = None):
