@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import sys
 import time
+from importlib.metadata import version
 
 import numpy as np
 import psutil
@@ -45,14 +46,15 @@ def browser_cpu_seconds() -> float:
 
 
 def phase(action, every: float) -> tuple[float, int]:
-    """Browser CPU seconds over :data:`PHASE_SECONDS` while ``action(i)`` runs every ``every`` s, and the calls."""
+    """Browser CPU seconds over :data:`PHASE_SECONDS` while ``action(i)`` (None: nothing) runs every
+    ``every`` s, and how many times it ran."""
     before, began, calls = browser_cpu_seconds(), time.perf_counter(), 0
     while time.perf_counter() - began < PHASE_SECONDS:
         if action is not None:
             action(calls)
-        calls += 1
+            calls += 1
         time.sleep(every)
-    return browser_cpu_seconds() - before, calls if action is not None else 0
+    return browser_cpu_seconds() - before, calls
 
 
 def main() -> int:
@@ -79,23 +81,23 @@ def main() -> int:
             def send_frame(i: int) -> None:
                 viewer.server.scene.set_background_image(np.roll(frame, i, axis=1), format="jpeg", jpeg_quality=85)
 
-            idle, _ = phase(None, 0.5)
-            phases = {"idle page": (idle, 0), "status text every 0.5 s": phase(show_status, 0.5),
-                      "256 x 256 frame every 1 s": phase(send_frame, 1.0),
-                      "256 x 256 frame every 2 s": phase(send_frame, 2.0)}
+            plan = [("idle page", None, 0.5), ("status text every 0.5 s", show_status, 0.5),
+                    ("256 x 256 frame every 1 s", send_frame, 1.0), ("256 x 256 frame every 2 s", send_frame, 2.0)]
+            phases = {name: (*phase(action, every), action is send_frame) for name, action, every in plan}
         finally:
             page.close()
             viewer.close()
+    idle = phases["idle page"][0]
     rows = []
-    for name, (seconds, calls) in phases.items():
-        per_frame = (seconds - idle) / calls if "frame" in name and calls else None
+    for name, (seconds, calls, frames) in phases.items():
+        per_frame = (seconds - idle) / calls if frames and calls else None
         record.figures[name] = {"browser_cpu_seconds": seconds, "updates": calls, "share_of_a_core": seconds / PHASE_SECONDS,
                                 "cpu_seconds_per_frame": per_frame}
         rows.append([name, f"{seconds:.2f}", f"{100 * seconds / PHASE_SECONDS:.0f} %", calls or "-",
                      "-" if per_frame is None else f"{per_frame:.2f}"])
     record.table(["page receives", f"browser CPU s in {PHASE_SECONDS:.0f} s", "of one core", "updates",
                   "CPU s per frame (over idle)"], rows, title="The browser's CPU while drawing one viewer page")
-    record.note("viser's client (1.1) draws continuously for 250 ms after every scene message "
+    record.note(f"viser's client ({version('viser')}) draws continuously for 250 ms after every scene message "
                 "(RENDER_SETTLE_MS in its App.tsx), all of it in software here; status texts change only the "
                 "panel. Training on the same 2 cores loses what the browser takes: see bench_viewer.py.")
     return record.finish()
