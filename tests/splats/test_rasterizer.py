@@ -324,4 +324,6 @@ def test_rendering_a_model_whose_splat_count_changes_compiles_the_projection_onc
             rasterization(means, quats, scales, opacities, torch.rand(count, 3, dtype=means.dtype), viewmats, Ks,
                           32, 32, backend="compiled")
         graphs.append(counters["stats"]["unique_graphs"])
-    assert graphs[-1] - graphs[0] <= 1  # the first count compiles (if nothing before did); the rest reuse it
+    # Counted from after the first count's render: the later counts reuse its graph (one more
+    # compile allowed, for dynamo turning a shape it first saw static into a dynamic one).
+    assert graphs[-1] - graphs[0] <= 1

@@ -1,4 +1,4 @@
-"""The voxel accumulator's sorting and index helpers, against the numpy calls they replace."""
+"""The voxel accumulator: its sorting and index helpers against the numpy calls they replace, and its growth."""
 
 from __future__ import annotations
 
