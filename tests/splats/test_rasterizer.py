@@ -299,7 +299,9 @@ def test_cuda_renders_and_differentiates_like_the_cpu():
     viewmats, Ks = (tensor.float() for tensor in cameras())
     results = {}
     for device in ("cpu", "cuda"):
-        inputs = [tensor.to(device).requires_grad_() for tensor in splats]
+        # a copy per device: on the CPU .to() returns the tensor itself, whose requires_grad
+        # would make the CUDA copies non-leaf tensors, without .grad
+        inputs = [tensor.detach().clone().to(device).requires_grad_() for tensor in splats]
         colors, depths, alphas, _ = rasterization(*inputs, viewmats.to(device), Ks.to(device), 40, 35)
         (colors.sum() + alphas.sum()).backward()
         results[device] = [colors.detach().cpu(), depths.detach().cpu(), alphas.detach().cpu(),

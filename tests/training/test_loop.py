@@ -9,7 +9,13 @@ import torch
 from torch import nn
 
 from pointfield.errors import PointfieldError
-from pointfield.training import RunDirectory, fit, load_checkpoint, save_checkpoint
+from pointfield.training import (
+    RunDirectory,
+    fit,
+    load_checkpoint,
+    restore,
+    save_checkpoint,
+)
 
 IDENTITY = {"task": "toy", "model": "linear"}
 
@@ -149,6 +155,19 @@ def test_a_run_killed_mid_epoch_resumes_from_the_last_step_checkpoint(tmp_path):
     for a, b in zip(weights(model), expected):
         torch.testing.assert_close(a, b, rtol=0, atol=0)
     assert [r["epoch"] for r in run.read_metrics_log()] == [1, 2]
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_a_checkpoint_read_onto_the_gpu_restores_the_random_generators(tmp_path):
+    # resuming on a GPU reads the checkpoint with map_location="cuda", which moves the generator
+    # states there too; torch.set_rng_state takes CPU byte tensors only
+    model = nn.Linear(2, 1)
+    torch.manual_seed(3)
+    save_checkpoint(tmp_path / "last.pt", identity={"task": "toy"}, model=model)
+    expected = torch.rand(4), torch.rand(4, device="cuda")
+    restore(tmp_path / "last.pt", load_checkpoint(tmp_path / "last.pt", map_location="cuda"), model, rng=True)
+    torch.testing.assert_close(torch.rand(4), expected[0], rtol=0, atol=0)
+    torch.testing.assert_close(torch.rand(4, device="cuda"), expected[1], rtol=0, atol=0)
 
 
 def test_a_nan_loss_stops_training_with_a_clear_error(tmp_path):

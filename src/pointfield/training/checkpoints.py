@@ -128,7 +128,9 @@ def restore(
             f"{path}: checkpoint does not fit this model: {first_line}"
         ) from None
     if rng:
-        torch.set_rng_state(payload["rng"]["torch"])
-        cuda_states = payload["rng"].get("cuda") or []
+        # Generator states are CPU byte tensors whatever device they describe; a payload read
+        # with map_location="cuda" has them on the GPU, which set_rng_state refuses.
+        torch.set_rng_state(payload["rng"]["torch"].cpu())
+        cuda_states = [state.cpu() for state in payload["rng"].get("cuda") or []]
         if torch.cuda.is_available() and len(cuda_states) == torch.cuda.device_count():
             torch.cuda.set_rng_state_all(cuda_states)
