@@ -102,5 +102,10 @@ bench-browser-cost: $(BIN)/.chromium
 bench-lego: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_lego.py
 
+# The GPU path (issue 19): needs a CUDA GPU, so it is not part of `make bench`. A torch build with
+# CUDA goes in first: make bench-gpu TORCH="torch==2.13.0 --index-url https://download.pytorch.org/whl/cu126".
+bench-gpu: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_gpu.py
+
 clean:
 	rm -rf $(VENV) demo-output bench-output
