@@ -1,5 +1,6 @@
 """The README's layout section is a true map of the tree, and the package root stays trimmed."""
 
+import os
 import re
 import subprocess
 import sys
@@ -50,5 +51,6 @@ def test_importing_the_hash_grid_field_imports_nothing_that_imports_it_back():
         " 'pointfield.training', 'pointfield.fields.run'))))"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                            env={"PYTHONPATH": str(ROOT / "src"), "PATH": "/usr/bin:/bin"})
+                            env={**os.environ, "PYTHONPATH": os.pathsep.join(
+                                filter(None, [str(ROOT / "src"), os.environ.get("PYTHONPATH")]))})
     assert result.stdout.strip() == "[]"
