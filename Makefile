@@ -42,7 +42,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-ptx bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-streaming bench-viewer bench-browser-cost
+bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-streaming bench-viewer bench-browser-cost
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -56,6 +56,9 @@ bench-fuzz: $(BIN)/.installed
 
 bench-ptx: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_ptx.py
+
+bench-fps: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_fps.py
 
 bench-pointnet: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_pointnet.py

@@ -82,6 +82,22 @@ def test_fpsample_agrees_with_the_reference_definition():
     np.testing.assert_array_equal(fast, slow.numpy())
 
 
+def test_the_bucketed_subset_is_as_well_spread_as_a_farthest_point_sample():
+    from scipy.spatial import cKDTree
+
+    points = random_cloud(20_000)
+    exact = ops.farthest_point_sample(points, 2_000)
+    subset = ops.farthest_point_subset(points, 2_000)
+    assert len(np.unique(subset)) == 2_000 and (np.diff(subset) > 0).all()
+
+    def covering_radius(sample):  # how far the worst-served point is from the sample
+        return cKDTree(points[sample]).query(points)[0].max()
+
+    assert covering_radius(subset) <= 1.01 * covering_radius(exact)
+    assert covering_radius(subset) < 0.5 * covering_radius(np.arange(2_000))  # an arbitrary 2,000 are far worse
+    assert ops.farthest_point_subset(points[:6], 9).tolist() == list(range(6))
+
+
 @pytest.mark.parametrize("backend", ["torch", "fpsample"])
 def test_batched_fps_agrees_with_the_reference_for_every_cloud(backend):
     points = torch.from_numpy(np.stack([random_cloud(300, seed) for seed in range(3)]))

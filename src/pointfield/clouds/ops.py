@@ -142,6 +142,41 @@ def farthest_point_sample(points: np.ndarray, size: int, start: int | None = Non
     return chosen
 
 
+def farthest_point_subset(points: np.ndarray, size: int) -> np.ndarray:
+    """Sorted ``(min(size, N),)`` int64 indices of a subset as spread out as a farthest point sample.
+
+    fpsample's bucket-based FPS on a k-d tree of lines (QuickFPS): each pick visits only the
+    buckets it can change, not every point, so thinning a large cloud costs a fraction of
+    :func:`farthest_point_sample`'s O(N K) -- 200,000 points to 20,000 about 50x faster
+    (``make bench-fps``) -- for a subset whose covering radius (the distance from the
+    worst-served point to it) is the same to 0.1 %. What it gives up: the picks come in no
+    order and from no chosen start, so there is no well spread prefix; for that, and for the
+    models, whose batched GPU sampling reproduces the exact picks, use
+    :func:`farthest_point_sample`.
+    """
+    import fpsample
+
+    count = len(points)
+    if count == 0:
+        raise ValueError("cannot sample from an empty cloud")
+    if size >= count:
+        return np.arange(count, dtype=np.int64)
+    if size <= 0:
+        return np.zeros(0, np.int64)
+    chosen = fpsample.bucket_fps_kdline_sampling(np.asarray(points, np.float32), size, h=bucket_tree_height(count))
+    return np.sort(chosen.astype(np.int64))
+
+
+def bucket_tree_height(count: int) -> int:
+    """The k-d tree height of bucketed FPS for ``count`` points: 3 below 5,000, 5 below 50,000, else 7.
+
+    Deeper trees have smaller buckets, which pay only with many points. Uniform points here, ms
+    per sample: 1,024 to 512 points 0.33 at height 3, 1.18 at 7 (exact FPS 1.26); 10,000 to
+    2,000: 4.8 at 5, 7.6 at 3; 100,000 to 10,000: 60 at 7, 99 at 5 (exact FPS 2,266).
+    """
+    return 3 if count < 5_000 else 5 if count < 50_000 else 7
+
+
 def voxel_downsample(cloud: PointCloud | np.ndarray, voxel_size: float) -> PointCloud | np.ndarray:
     """One point per occupied cube of side ``voxel_size``: the mean of the points inside it.
 

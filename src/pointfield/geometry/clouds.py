@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from pointfield.clouds.cloud import PointCloud
-from pointfield.clouds.ops import farthest_point_sample, statistical_inliers
+from pointfield.clouds.ops import farthest_point_subset, statistical_inliers
 from pointfield.errors import PointfieldError
 from pointfield.scenes.cameras import Cameras
 
@@ -99,7 +99,7 @@ def clean_cloud(
     if outlier_neighbours > 0 and len(cloud.points):
         cloud = cloud.select(statistical_inliers(cloud.points, outlier_neighbours, outlier_std))
     if points is not None and len(cloud.points) > points:
-        cloud = cloud.select(np.sort(farthest_point_sample(cloud.points, points)))
+        cloud = cloud.select(farthest_point_subset(cloud.points, points))
     return cloud
 
 
