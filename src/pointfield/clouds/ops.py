@@ -149,7 +149,7 @@ def farthest_point_subset(points: np.ndarray, size: int) -> np.ndarray:
     buckets it can change, not every point, so thinning a large cloud costs a fraction of
     :func:`farthest_point_sample`'s O(N K) -- 200,000 points to 20,000 57x faster
     (``make bench-fps``) -- for a subset whose covering radius (the distance from the
-    worst-served point to it) is the same to 0.1 %. What it gives up: the picks come in no
+    worst-served point to it) is the same to 0.2 %. What it gives up: the picks come in no
     order and from no chosen start, so there is no well spread prefix; for that, and for the
     models, whose batched GPU sampling reproduces the exact picks, use
     :func:`farthest_point_sample`.
