@@ -244,6 +244,15 @@ def test_a_scan_for_a_robot_becomes_voxels_whose_python_runs(shared_data, tmp_pa
     assert 0 < len(voxels) < 17238  # one point per occupied 5 cm voxel of the 17,238-point scan
 
 
+def test_a_scan_for_a_mesh_gets_python_that_writes_it_with_normals(shared_data, tmp_path, monkeypatch):
+    answer = route(shared_data / "kitti/semantickitti_seq00/000000.bin", task="mesh")
+    assert answer.representation == "mesh"
+    monkeypatch.chdir(tmp_path)
+    exec("\n".join(answer.python), {})  # noqa: S102  (the python lines the router prints)
+    cloud = pointfield.read(tmp_path / "000000-normals.ply")
+    assert len(cloud) == 100_000 and "normals" in cloud.fields  # thinned from 124,668 points
+
+
 def test_a_modelnet_mesh_to_classify_trains_on_its_modelnet_folder(shared_data):
     chair = shared_data / "modelnet/ModelNet10/chair/train/chair_0001.off"
     answer = route(chair, task="classify")

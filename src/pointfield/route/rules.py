@@ -180,8 +180,10 @@ def _cloud(given: Input, task: str | None) -> Plan:
                   "route the photos of the object with --task mesh")]
         python = [] if _has_normals(details) else [
             "import pointfield",
-            "from pointfield.clouds.transforms import Compose, EstimateNormals, FarthestPointSample",
-            f"cloud = Compose([FarthestPointSample(100_000), EstimateNormals(16)])(pointfield.read({source!r}))",
+            "from pointfield.clouds.ops import farthest_point_subset",
+            "from pointfield.clouds.transforms import EstimateNormals",
+            f"cloud = pointfield.read({source!r})",
+            "cloud = EstimateNormals(16)(cloud.select(farthest_point_subset(cloud.points, 100_000)))  # thinned, spread",
             f"pointfield.write({name + '-normals.ply'!r}, cloud)  # x y z nx ny nz: what meshers take",
         ]
         commands = [_pf("cloud", "info", source)]
