@@ -89,6 +89,7 @@ def test_the_bucketed_subset_is_as_well_spread_as_a_farthest_point_sample():
     exact = ops.farthest_point_sample(points, 2_000)
     subset = ops.farthest_point_subset(points, 2_000)
     assert len(np.unique(subset)) == 2_000 and (np.diff(subset) > 0).all()
+    np.testing.assert_array_equal(subset, ops.farthest_point_subset(points, 2_000))  # the same every time
 
     def covering_radius(sample):  # how far the worst-served point is from the sample
         return cKDTree(points[sample]).query(points)[0].max()

@@ -149,10 +149,11 @@ def farthest_point_subset(points: np.ndarray, size: int) -> np.ndarray:
     buckets it can change, not every point, so thinning a large cloud costs a fraction of
     :func:`farthest_point_sample`'s O(N K) -- 200,000 points to 20,000 57x faster
     (``make bench-fps``) -- for a subset whose covering radius (the distance from the
-    worst-served point to it) is the same to 0.2 %. What it gives up: the picks come in no
-    order and from no chosen start, so there is no well spread prefix; for that, and for the
-    models, whose batched GPU sampling reproduces the exact picks, use
-    :func:`farthest_point_sample`.
+    worst-served point to it) is the same to 0.2 %. It starts, as that does, at
+    :func:`farthest_point_start` (fpsample's own default is a random point: exports would differ
+    from run to run). What it gives up: the picks come in no order, so there is no well spread
+    prefix; for that, and for the models, whose batched GPU sampling reproduces the exact picks,
+    use :func:`farthest_point_sample`.
     """
     import fpsample
 
@@ -163,7 +164,8 @@ def farthest_point_subset(points: np.ndarray, size: int) -> np.ndarray:
         return np.arange(count, dtype=np.int64)
     if size <= 0:
         return np.zeros(0, np.int64)
-    chosen = fpsample.bucket_fps_kdline_sampling(np.asarray(points, np.float32), size, h=bucket_tree_height(count))
+    chosen = fpsample.bucket_fps_kdline_sampling(np.asarray(points, np.float32), size, h=bucket_tree_height(count),
+                                                 start_idx=farthest_point_start(points))
     return np.sort(chosen.astype(np.int64))
 
 
