@@ -147,9 +147,9 @@ def farthest_point_subset(points: np.ndarray, size: int) -> np.ndarray:
 
     fpsample's bucket-based FPS on a k-d tree of lines (QuickFPS): each pick visits only the
     buckets it can change, not every point, so thinning a large cloud costs a fraction of
-    :func:`farthest_point_sample`'s O(N K) -- 200,000 points to 20,000 57x faster
+    :func:`farthest_point_sample`'s O(N K) -- 200,000 points to 20,000 50x faster
     (``make bench-fps``) -- for a subset whose covering radius (the distance from the
-    worst-served point to it) is the same to 0.2 %. It starts, as that does, at
+    worst-served point to it) is the same to 0.5 %. It starts, as that does, at
     :func:`farthest_point_start` (fpsample's own default is a random point: exports would differ
     from run to run). What it gives up: the picks come in no order, so there is no well spread
     prefix; for that, and for the models, whose batched GPU sampling reproduces the exact picks,
