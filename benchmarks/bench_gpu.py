@@ -92,30 +92,14 @@ def render_seconds(out: Path, device: str, repeats: int) -> float:
 
 
 def pointnet_speed(device: torch.device, batch: int, steps: int, rounds: int) -> dict[str, float]:
-    """Training samples/s (Adam, 1,024 points, 10 classes) of PointNet and PointNet++ on ``device``."""
+    """Training samples/s (Adam, 1,024 points, 10 classes) of PointNet and PointNet++ on ``device``:
+    bench_pointnet.py's measurement, on new models of the same sizes for each device."""
+    from bench_pointnet import speed
+
     from pointfield.clouds.models import PointNet2Classifier, PointNetClassifier
 
-    torch.manual_seed(0)
-    points = torch.randn(batch, 1024, 3, device=device)
-    points /= points.norm(dim=-1, keepdim=True).amax(dim=1, keepdim=True)
-    labels = torch.randint(0, 10, (batch,), device=device)
     models = {"PointNet (both T-Nets)": PointNetClassifier(10), "PointNet++ SSG": PointNet2Classifier(10)}
-    results = {}
-    for name, model in models.items():
-        model = model.to(device).train()
-        optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
-
-        def train_steps(model=model, optimizer=optimizer):
-            for _ in range(steps):
-                optimizer.zero_grad(set_to_none=True)
-                logits, regulariser = model(points, with_regulariser=True)
-                (F.cross_entropy(logits, labels) + regulariser).backward()
-                optimizer.step()
-            if device.type == "cuda":
-                torch.cuda.synchronize(device)
-
-        results[name] = batch * steps / interleaved({name: train_steps}, rounds)[name].median
-    return results
+    return {name: figures["train"] for name, figures in speed(models, batch, rounds, steps, device).items()}
 
 
 def rasterizer_blocks(device: torch.device, splats: int, size: int, repeats: int) -> list[dict]:

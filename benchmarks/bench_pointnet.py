@@ -113,17 +113,26 @@ def parameter_counts() -> dict[str, int]:
     return {name: count_parameters(model) for name, model in models.items()}
 
 
-def speed(models: dict[str, nn.Module], batch: int, rounds: int, steps: int) -> dict[str, dict]:
-    """Median samples/s of training steps (Adam) and of inference, models interleaved.
+def speed(models: dict[str, nn.Module], batch: int, rounds: int, steps: int,
+          device: str | torch.device = "cpu") -> dict[str, dict]:
+    """Median samples/s of training steps (Adam) and of inference, models interleaved, on ``device``.
 
     Interleaving rounds (harness.interleaved) spreads any slowdown of a shared machine over all
-    models alike; the median of the rounds discards the worst of it.
+    models alike; the median of the rounds discards the worst of it. The models are moved to
+    ``device``; on a GPU each timed run ends by waiting for its kernels.
     """
+    device = torch.device(device)
     torch.manual_seed(0)
     points = torch.randn(batch, POINTS, 3)
     points /= points.norm(dim=-1, keepdim=True).amax(dim=1, keepdim=True)
-    labels = torch.randint(0, CLASSES, (batch,))
+    points = points.to(device)
+    labels = torch.randint(0, CLASSES, (batch,)).to(device)
+    models = {name: model.to(device) for name, model in models.items()}
     optimizers = {name: torch.optim.Adam(m.parameters(), lr=1e-3) for name, m in models.items()}
+
+    def synchronise():
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
 
     def train_steps(name: str) -> None:
         model, optimizer = models[name], optimizers[name]
@@ -134,6 +143,7 @@ def speed(models: dict[str, nn.Module], batch: int, rounds: int, steps: int) -> 
             loss = F.cross_entropy(logits, labels) + regulariser
             loss.backward()
             optimizer.step()
+        synchronise()
 
     def infer_steps(name: str) -> None:
         model = models[name]
@@ -141,6 +151,7 @@ def speed(models: dict[str, nn.Module], batch: int, rounds: int, steps: int) -> 
         with torch.inference_mode():
             for _ in range(steps):
                 model(points)
+        synchronise()
 
     results = {name: {} for name in models}
     for mode, run in (("train", train_steps), ("inference", infer_steps)):
