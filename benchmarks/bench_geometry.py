@@ -35,6 +35,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -116,6 +117,17 @@ def render_picture(path: Path, picture: Path) -> None:
     from pointfield.viz.render import render_file
 
     render_file(path, picture, up="z")
+
+
+def export_scored_mesh(run, path: Path, scored: Callable[[np.ndarray], dict], args,
+                       **options) -> tuple[dict, float, dict]:
+    """Export ``run``'s mesh to ``path`` with ``options`` (timed), draw it beside, score it:
+    ``(scores, export seconds, export_mesh's summary)``."""
+    started = time.perf_counter()
+    summary = export_mesh(run, path, resolution=args.resolution, progress=False, **options)
+    seconds = time.perf_counter() - started
+    render_picture(path, path.with_suffix(".png"))
+    return scored(sample_mesh(read(path), args.mesh_samples)), seconds, summary
 
 
 def score_row(scene: str, model: str, output: str, scores: dict, seconds: float | None) -> list:
@@ -232,49 +244,38 @@ def main() -> int:
             record.note(f"{name} {model}: held-out PSNR {metrics['psnr']:.2f} dB, opacity error "
                         f"{metrics['opacity_error']:.4f}, {metrics['steps']} steps in {metrics['training_seconds']:.0f} s.")
             run = pointfield.load_run(run_path)
-            started = time.perf_counter()
-            mesh_file = args.out / f"{name}-{model}-mesh.ply"
-            summary = export_mesh(run, mesh_file, resolution=args.resolution, progress=False)
-            mesh_seconds = time.perf_counter() - started
-            mesh = read(mesh_file)
-            mesh_scores = scored(sample_mesh(mesh, args.mesh_samples))
-            record.figures[f"{name}/{model}/mesh"] = {**mesh_scores, "seconds": mesh_seconds, "faces": summary["faces"]}
-            rows.append(score_row(name, model, "mesh", mesh_scores, mesh_seconds))
+            # The default mesh, and the others a user can ask for: TSDF of the median depth and
+            # (bounded fields) marching cubes on the density.
+            meshes = {"mesh": {}, "mesh, median depth": {"depth": "median"}}
+            if model == "ngp":
+                meshes["mesh, density"] = {"method": "density"}
+            outputs = {}
+            for output, options in meshes.items():
+                path = args.out / f"{name}-{model}-{output.replace(', ', '-').replace(' ', '-')}.ply"
+                outputs[output], seconds, summary = export_scored_mesh(run, path, scored, args, **options)
+                record.figures[f"{name}/{model}/{output}"] = {**outputs[output], "seconds": seconds,
+                                                              "faces": summary["faces"]}
+                rows.append(score_row(name, model, output, outputs[output], seconds))
+                if output == "mesh":
+                    box_low, box_high = summary["box"]  # the peer fuses over the same box
             started = time.perf_counter()
             cloud_file = args.out / f"{name}-{model}-cloud.ply"
             export_cloud(run, cloud_file, progress=False)
             cloud_seconds = time.perf_counter() - started
-            cloud_scores = scored(read(cloud_file).points)
-            record.figures[f"{name}/{model}/cloud"] = {**cloud_scores, "seconds": cloud_seconds}
-            rows.append(score_row(name, model, "cloud", cloud_scores, cloud_seconds))
+            render_picture(cloud_file, cloud_file.with_suffix(".png"))
+            outputs["cloud"] = scored(read(cloud_file).points)
+            record.figures[f"{name}/{model}/cloud"] = {**outputs["cloud"], "seconds": cloud_seconds}
+            rows.append(score_row(name, model, "cloud", outputs["cloud"], cloud_seconds))
             # The peer on the same rendered depth, over the same box.
             cameras = scene.cameras[training]
             views = rendered_depth_maps(run, cameras.to(run.device), progress=False)
-            box_low, box_high = summary["box"]
             started = time.perf_counter()
             peer = open3d_mesh(views, cameras, box_low, box_high, args.resolution)
             peer_seconds = time.perf_counter() - started
             peer_scores = scored(sample_mesh(peer, args.mesh_samples))
             record.figures[f"{name}/{model}/open3d mesh"] = {**peer_scores, "seconds": peer_seconds}
             rows.append(score_row(name, model, "mesh (open3d VoxelBlockGrid, same depth)", peer_scores, peer_seconds))
-            # The other meshes a user can ask for: TSDF of the median depth, and (bounded fields)
-            # marching cubes on the density.
-            others = {"mesh, median depth": {"depth": "median"}}
-            if model == "ngp":
-                others["mesh, density"] = {"method": "density"}
-            other_scores = {}
-            for output, options in others.items():
-                other_file = args.out / f"{name}-{model}-{output.replace(', ', '-').replace(' ', '-')}.ply"
-                started = time.perf_counter()
-                export_mesh(run, other_file, resolution=args.resolution, progress=False, **options)
-                other_seconds = time.perf_counter() - started
-                other_scores[output] = scored(sample_mesh(read(other_file), args.mesh_samples))
-                record.figures[f"{name}/{model}/{output}"] = {**other_scores[output], "seconds": other_seconds}
-                rows.append(score_row(name, model, output, other_scores[output], other_seconds))
-                render_picture(other_file, other_file.with_suffix(".png"))
-            for kind, path in (("mesh", mesh_file), ("cloud", cloud_file)):
-                render_picture(path, args.out / f"{name}-{model}-{kind}.png")
-            for kind, scores in (("mesh", mesh_scores), ("cloud", cloud_scores), *other_scores.items()):
+            for kind, scores in outputs.items():
                 record.verdict(f"{name} {model} {kind}: Chamfer <= {100 * GOAL_CHAMFER:.1f} % of the diagonal, "
                                f"F-score >= {GOAL_FSCORE}",
                                scores["chamfer_relative"] <= GOAL_CHAMFER and scores["fscore"] >= GOAL_FSCORE,
