@@ -21,6 +21,9 @@ import numpy as np
 import pointfield
 from pointfield import FormatError, Mesh, PointCloud, Records
 
+HAS_PYE57 = importlib.util.find_spec("pye57") is not None
+"""E57 is read and written through the optional pye57 (``pointfield[e57]``): without it, no E57 seeds."""
+
 # Real files small enough to mutate thousands of times, one or more per reader and encoding.
 REAL_SEEDS = (
     "pcd/pcl_bunny_ascii.pcd",
@@ -72,8 +75,8 @@ def generated_seeds(workdir: Path) -> list[Seed]:
     for fmt in pointfield.clouds.formats.formats():
         if fmt.write is None:
             continue
-        if fmt.name == "e57" and importlib.util.find_spec("pye57") is None:
-            continue  # E57 needs the optional pye57 (pointfield[e57]); without it nothing writes one
+        if fmt.name == "e57" and not HAS_PYE57:
+            continue  # nothing writes E57 without pye57
         for encoding in fmt.encodings or (None,):
             for suffix in fmt.suffixes[:1]:
                 for kind, item in (("cloud", cloud), ("mesh", mesh)):
@@ -137,11 +140,10 @@ def legacy_laszip(laz: bytes) -> bytes:
 
 
 def real_seeds(shared_data: Path) -> list[Seed]:
-    """The real files of REAL_SEEDS, but E57 where the optional pye57 is missing (it reads none)."""
-    without_e57 = importlib.util.find_spec("pye57") is None
+    """The real files of REAL_SEEDS, but E57 where pye57 is missing (nothing reads one then)."""
     return [
         Seed(rel, (shared_data / rel).read_bytes(), Path(rel).suffix)
-        for rel in REAL_SEEDS if not (without_e57 and rel.endswith(".e57"))
+        for rel in REAL_SEEDS if HAS_PYE57 or not rel.endswith(".e57")
     ]
 
 

@@ -164,12 +164,12 @@ def farthest_point_subset(points: np.ndarray, size: int) -> np.ndarray:
         return np.arange(count, dtype=np.int64)
     if size <= 0:
         return np.zeros(0, np.int64)
-    chosen = fpsample.bucket_fps_kdline_sampling(np.asarray(points, np.float32), size, h=bucket_tree_height(count),
+    chosen = fpsample.bucket_fps_kdline_sampling(np.asarray(points, np.float32), size, h=_bucket_tree_height(count),
                                                  start_idx=farthest_point_start(points))
     return np.sort(chosen.astype(np.int64))
 
 
-def bucket_tree_height(count: int) -> int:
+def _bucket_tree_height(count: int) -> int:
     """The k-d tree height of bucketed FPS for ``count`` points: 3 below 5,000, 5 below 50,000, else 7.
 
     Deeper trees have smaller buckets, which pay only with many points. Uniform points here, ms
