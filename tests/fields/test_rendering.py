@@ -8,6 +8,7 @@ import torch
 from pointfield.fields.rays import RayBundle, RaySamples
 from pointfield.fields.rendering import (
     composite,
+    distortion_loss,
     render_rays,
     render_weights_from_density,
     transmittance_from_optical_depth,
@@ -220,3 +221,35 @@ def test_an_infinitely_dense_packed_sample_gives_finite_gradients_and_an_opaque_
     torch.testing.assert_close(rendered.opacity[1], torch.tensor(1 - math.exp(-0.25)))
     (rendered.color.sum() + rendered.depth.sum()).backward()
     assert torch.isfinite(colors.grad).all() and torch.isfinite(sigmas.grad).all()
+
+
+def _brute_force_distortion(weights, samples):
+    middle, deltas = 0.5 * (samples.t_starts + samples.t_ends), samples.deltas
+    pairs = weights[:, :, None] * weights[:, None, :] * (middle[:, :, None] - middle[:, None, :]).abs()
+    return (pairs.sum((1, 2)) + (weights ** 2 * deltas).sum(-1) / 3).mean()
+
+
+def test_distortion_loss_is_mip_nerf_360s_double_sum_padded_and_packed():
+    generator = torch.Generator().manual_seed(0)
+    edges = torch.cumsum(torch.rand(5, 9, generator=generator, dtype=torch.float64), dim=-1)
+    samples = RaySamples.from_bin_edges(edges)
+    weights = torch.rand(5, 8, generator=generator, dtype=torch.float64) / 8
+    expected = _brute_force_distortion(weights, samples)
+    torch.testing.assert_close(distortion_loss(weights, samples, 1.0), expected)
+    torch.testing.assert_close(distortion_loss(weights.reshape(-1), samples.packed(), 1.0), expected)
+    # Lengths in units of `length`: the same rays in a scene twice as large give the same loss.
+    torch.testing.assert_close(distortion_loss(weights, RaySamples.from_bin_edges(2 * edges), 2.0), expected)
+
+
+def test_distortion_loss_prefers_one_thin_layer_and_its_gradient_draws_weight_together():
+    samples = RaySamples.from_bin_edges(torch.linspace(2.0, 4.0, 21, dtype=torch.float64)[None])
+    spread = torch.full((1, 20), 0.9 / 20, dtype=torch.float64)
+    thin = torch.zeros(1, 20, dtype=torch.float64)
+    thin[0, 10] = 0.9
+    assert distortion_loss(thin, samples, 2.0) < 0.1 * distortion_loss(spread, samples, 2.0)
+    # Two layers: the gradient shrinks the fainter one faster (it pays for the heavier one's distance).
+    two = torch.zeros(1, 20, dtype=torch.float64)
+    two[0, 2], two[0, 17] = 0.6, 0.3
+    two.requires_grad_(True)
+    distortion_loss(two, samples, 2.0).backward()
+    assert two.grad[0, 17] > two.grad[0, 2] > 0

@@ -43,12 +43,13 @@ class RenderedRays:
     """What compositing gives for R rays.
 
     ``color`` ``(R, 3)``; ``depth`` ``(R,)`` expected distance along the ray at which it stops,
-    given that it stops (``sum w_i t_i / sum w_i``; 0 where nothing is hit); ``opacity`` ``(R,)``
-    ``sum w_i``; ``weights`` shaped like the samples' ``t_starts`` (``(R, K)`` or ``(S,)``);
-    ``samples`` the :class:`~pointfield.fields.rays.RaySamples` composited; ``median_depth``
-    ``(R,)`` the ``t`` of the first sample at which the accumulated opacity reaches 0.5 (0 where
-    it never does): the depth of a surface, where the expected depth of a semi-transparent or
-    doubled one falls between the layers.
+    given that it stops (``sum w_i s_i / sum w_i`` with ``s_i`` the expected stop inside
+    interval i, :func:`expected_stop`; 0 where nothing is hit); ``opacity`` ``(R,)`` ``sum w_i``;
+    ``weights`` shaped like the samples' ``t_starts`` (``(R, K)`` or ``(S,)``); ``samples`` the
+    :class:`~pointfield.fields.rays.RaySamples` composited; ``median_depth`` ``(R,)`` the distance
+    at which the accumulated opacity reaches 0.5 (0 where it never does): the depth of a
+    surface, where the expected depth of a semi-transparent or doubled one falls between the
+    layers.
     """
 
     color: torch.Tensor
@@ -85,13 +86,47 @@ def transmittance_from_optical_depth(
     # sample (up to inf) from swamping the global sum: the later samples of every later ray
     # would lose their own small terms to it, or get inf - inf = NaN.
     clamped = optical_depth.double().clamp(max=OPAQUE_OPTICAL_DEPTH)
-    inclusive = torch.cumsum(clamped, dim=0)
-    exclusive = inclusive - clamped
+    return torch.exp(-exclusive_sum_along_rays(clamped, ray_indices)).to(optical_depth.dtype)
+
+
+def exclusive_sum_along_rays(values: torch.Tensor, ray_indices: torch.Tensor) -> torch.Tensor:
+    """``(S,)``: for each packed sample, the sum of ``values`` over the earlier samples of its ray.
+
+    One global cumulative sum minus its value where each ray's run starts (``ray_indices``
+    non-decreasing); pass float64 where the batch is long.
+    """
+    inclusive = torch.cumsum(values, dim=0)
+    exclusive = inclusive - values
     first = torch.ones_like(ray_indices, dtype=torch.bool)
     first[1:] = ray_indices[1:] != ray_indices[:-1]
     run = torch.cumsum(first.long(), dim=0) - 1  # which run (ray) each sample is in
-    base = exclusive[first][run]
-    return torch.exp(-(exclusive - base)).to(optical_depth.dtype)
+    return exclusive - exclusive[first][run]
+
+
+def distortion_loss(weights: torch.Tensor, samples: RaySamples, length: float) -> torch.Tensor:
+    """Mip-NeRF 360's distortion loss, the mean over rays: small when each ray's weight is one thin layer.
+
+    ``sum_{i,j} w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 delta_i`` with ``m`` the intervals'
+    midpoints and ``delta`` their lengths, both divided by ``length`` (e.g. the scene box's
+    diagonal) so that the weight of the loss does not depend on the scene's units. The double
+    sum is ``2 sum_i w_i (m_i W_i - M_i)``, with ``W_i`` and ``M_i`` the sums of ``w`` and ``w m``
+    over the ray's earlier samples (intervals sorted along each ray, as samplers give them).
+    ``weights`` ``(R, K)`` padded or ``(S,)`` packed, like ``samples``.
+    """
+    middle = 0.5 * (samples.t_starts + samples.t_ends) / length
+    deltas = samples.deltas / length
+    if samples.ray_indices is None:
+        before = torch.cumsum(weights, dim=-1) - weights
+        weighted_before = torch.cumsum(weights * middle, dim=-1) - weights * middle
+        per_ray = (2 * weights * (middle * before - weighted_before) + weights ** 2 * deltas / 3).sum(dim=-1)
+        return per_ray.mean() if per_ray.numel() else weights.sum()
+    rays = max(int(samples.num_rays), 1)
+    # Float64 sums: one global running sum over a long batch would lose each ray's small terms.
+    wide, middle = weights.double(), middle.double()
+    before = exclusive_sum_along_rays(wide, samples.ray_indices)
+    weighted_before = exclusive_sum_along_rays(wide * middle, samples.ray_indices)
+    loss = (2 * wide * (middle * before - weighted_before) + wide ** 2 * deltas.double() / 3).sum() / rays
+    return loss.to(weights.dtype)
 
 
 def render_weights_from_density(
@@ -125,9 +160,10 @@ def composite(
 
     ``sigmas`` ``(R, K)`` and ``colors`` ``(R, K, 3)`` for padded samples, ``(S,)`` and ``(S, 3)``
     for packed ones. ``C = sum_i w_i c_i + (1 - sum_i w_i) background``; ``background`` is
-    ``(3,)`` or ``(R, 3)`` (None: black, i.e. nothing added). Depth is ``sum_i w_i t_i / sum_i
-    w_i`` at the samples' ``t``. A packed ray without samples gets the background, opacity 0 and
-    depth 0.
+    ``(3,)`` or ``(R, 3)`` (None: black, i.e. nothing added). Depth is ``sum_i w_i s_i / sum_i
+    w_i``, with ``s_i`` where in interval i the ray stops on average (:func:`expected_stop`:
+    the interval's start where it is opaque, its middle where it is faint). A packed ray
+    without samples gets the background, opacity 0 and depth 0.
 
     Example (an opaque wall at t = 3 in front of a red one at t = 4)::
 
@@ -138,8 +174,8 @@ def composite(
         >>> out.color, out.depth, out.opacity
         (tensor([[0., 1., 0.]]), tensor([3.]), tensor([1.]))
     """
-    weights, _, _ = render_weights_from_density(sigmas, samples.deltas, samples.ray_indices)
-    t = samples.t
+    weights, transmittance, _ = render_weights_from_density(sigmas, samples.deltas, samples.ray_indices)
+    t = expected_stop(sigmas, samples)
     if samples.ray_indices is None:
         opacity = weights.sum(dim=-1)
         color = (weights[..., None] * colors).sum(dim=-2)
@@ -151,34 +187,54 @@ def composite(
         depth = sigmas.new_zeros(rays).index_add(0, index, weights * t) / opacity.clamp_min(1e-10)
     if background is not None:
         color = color + (1 - opacity)[..., None] * background
-    return RenderedRays(color, depth, opacity, weights, samples, median_depth(weights, t, samples))
+    return RenderedRays(color, depth, opacity, weights, samples,
+                        median_depth(weights, transmittance, sigmas, samples))
 
 
 MEDIAN_OPACITY = 0.5
 
 
-def median_depth(weights: torch.Tensor, t: torch.Tensor, samples: RaySamples) -> torch.Tensor:
-    """``(R,)``: ``t`` of each ray's first sample where ``sum_{j<=i} w_j >= 0.5``; 0 if none (no gradient)."""
-    weights, t = weights.detach(), t.detach()
+def expected_stop(sigmas: torch.Tensor, samples: RaySamples) -> torch.Tensor:
+    """Where in its interval a ray stops, on average, given that it stops there: ``t_start + delta g(sigma delta)``.
+
+    The density is constant on each interval (the quadrature's own model), so the stopping
+    distance inside it is exponentially distributed, truncated to ``delta``:
+    ``g(x) = 1/x - 1/(e^x - 1)``, from 1/2 (transparent: the midpoint) down to ``1/x`` (opaque:
+    the interval's start). Measuring depth at the samples' ``t`` instead puts an opaque surface
+    up to half an interval behind where the rendering sees it. Shaped like ``sigmas``.
+    """
+    x = (sigmas * samples.deltas).clamp(min=0)
+    small = x < 1e-3
+    wide = x.clamp(min=1e-3)
+    # Past x = 50, 1 / (e^x - 1) < 2e-22; capping it there keeps e^x (and its gradient) finite.
+    g = torch.where(small, 0.5 - x / 12, 1 / wide - 1 / torch.expm1(wide.clamp(max=50.0)))
+    return samples.t_starts + samples.deltas * g
+
+
+def median_depth(weights: torch.Tensor, transmittance: torch.Tensor, sigmas: torch.Tensor,
+                 samples: RaySamples) -> torch.Tensor:
+    """``(R,)``: where along each ray the accumulated opacity reaches 0.5; 0 where it never does (no gradient).
+
+    Inside the interval i where it crosses, the transmittance falls as ``T_i exp(-sigma_i (t -
+    t_start))``, so it reaches 0.5 at ``t_start + ln(2 T_i) / sigma_i``.
+    """
+    weights, transmittance, sigmas = weights.detach(), transmittance.detach(), sigmas.detach()
+    inside = (torch.log((2 * transmittance).clamp(min=1.0)) / sigmas.clamp(min=1e-10)).clamp(min=0)
+    crossing_t = samples.t_starts.detach() + torch.minimum(inside, samples.deltas.detach())
     if samples.ray_indices is None:
         accumulated = torch.cumsum(weights, dim=-1)
-        first = (accumulated < MEDIAN_OPACITY).sum(dim=-1, keepdim=True).clamp(max=max(t.shape[-1] - 1, 0))
-        reached = accumulated[..., -1] >= MEDIAN_OPACITY if t.shape[-1] else torch.zeros_like(t[..., 0], dtype=torch.bool)
-        median = t.gather(-1, first)[..., 0] if t.shape[-1] else torch.zeros(t.shape[:-1], dtype=t.dtype, device=t.device)
-        return torch.where(reached, median, torch.zeros_like(median))
+        if not crossing_t.shape[-1]:
+            return torch.zeros(crossing_t.shape[:-1], dtype=crossing_t.dtype, device=crossing_t.device)
+        first = (accumulated < MEDIAN_OPACITY).sum(dim=-1, keepdim=True).clamp(max=crossing_t.shape[-1] - 1)
+        median = crossing_t.gather(-1, first)[..., 0]
+        return torch.where(accumulated[..., -1] >= MEDIAN_OPACITY, median, torch.zeros_like(median))
     index, rays = samples.ray_indices, samples.num_rays
-    median = t.new_zeros(rays)
+    median = crossing_t.new_zeros(rays)
     if len(index) == 0:
         return median
-    # Each ray's running sum, from one global cumulative sum minus its value where the ray starts.
-    inclusive = torch.cumsum(weights.double(), dim=0)
-    start = torch.ones_like(index, dtype=torch.bool)
-    start[1:] = index[1:] != index[:-1]
-    run = torch.cumsum(start.long(), dim=0) - 1
-    accumulated = inclusive - (inclusive - weights.double())[start][run]
-    before = accumulated - weights.double()
-    crossing = (accumulated >= MEDIAN_OPACITY) & (before < MEDIAN_OPACITY)
-    return median.index_put((index[crossing],), t[crossing])
+    before = exclusive_sum_along_rays(weights.double(), index)
+    crossing = (before + weights.double() >= MEDIAN_OPACITY) & (before < MEDIAN_OPACITY)
+    return median.index_put((index[crossing],), crossing_t[crossing])
 
 
 def render_rays(
