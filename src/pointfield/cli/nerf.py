@@ -55,6 +55,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--alpha-loss", type=float, default=None, metavar="WEIGHT",
                        help="add WEIGHT x |rendered opacity - alpha| to the loss where the images have alpha "
                             "(default 0: off)")
+    train.add_argument("--distortion", type=float, default=None, metavar="WEIGHT",
+                       help="weight of the distortion loss, which keeps each ray's density in one thin layer: "
+                            "surfaces where they are, for meshes and clouds (default: 0.01 for ngp on a bounded scene, 0 otherwise)")
     train.add_argument("--eval-every", type=int, metavar="STEPS",
                        help="evaluate on held-out views every STEPS steps (default: every epoch, at most 500)")
     train.add_argument("--lr", dest="learning_rate", type=float,
@@ -129,7 +132,7 @@ def run_train(args: argparse.Namespace) -> int:
         metrics = train(
             args.scene, model=args.model, out=args.out, steps=args.steps, max_time=args.max_time,
             batch_rays=args.batch_rays, downscale=args.downscale, holdout_every=args.holdout_every,
-            background=background, random_background=args.random_background, alpha_loss=args.alpha_loss, device=args.device, seed=args.seed, resume=args.resume,
+            background=background, random_background=args.random_background, alpha_loss=args.alpha_loss, distortion=args.distortion, device=args.device, seed=args.seed, resume=args.resume,
             eval_every=args.eval_every, learning_rate=args.learning_rate, progress=args.progress,
             scene_box=[float(v) for v in args.scene_box.split(",")] if "," in args.scene_box else args.scene_box,
         )

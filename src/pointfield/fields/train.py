@@ -12,7 +12,8 @@ Example::
 The recipe: every pixel of the training views is a ray (``Cameras.rays``) with its colour;
 each step renders ``batch_rays`` of them, drawn without replacement until all have been used
 (one *epoch*, a pass over all training rays, then reshuffled), and minimises the mean squared
-colour error of every render pass (NeRF: coarse and fine) with Adam, learning rate decayed
+colour error of every render pass (NeRF: coarse and fine), plus on the fast field of an object
+the distortion loss (:data:`BOUNDED_NGP_DISTORTION`), with Adam, learning rate decayed
 exponentially to a tenth over the run. Samples are jittered while training and at bin centres
 when evaluating. The hash-grid field (``ngp``) sizes its own batches instead: as many random
 rays as keep a step near its ``target_samples`` (:class:`~pointfield.fields.field.RayBudget`).
@@ -41,6 +42,7 @@ import torch
 from pointfield.errors import PointfieldError
 from pointfield.fields.field import RayBudget
 from pointfield.fields.rays import RayBundle
+from pointfield.fields.rendering import distortion_loss
 from pointfield.fields.run import (
     TASK,
     build_field,
@@ -78,6 +80,14 @@ DEFAULT_STEPS = {"tiny": 2000, "nerf": 5000, "ngp": 3000}
 LEARNING_RATES = {"tiny": 5e-4, "nerf": 5e-4, "ngp": 1e-2}
 """Adam's default learning rate per model (the hash grid's, as in Instant-NGP, is much larger)."""
 FINAL_LEARNING_RATE_FRACTION = 0.1
+BOUNDED_NGP_DISTORTION = 0.01
+"""The distortion loss's default weight for the fast field on a bounded scene (an object on a
+transparent background); 0 elsewhere (:func:`~pointfield.fields.rendering.distortion_loss`).
+
+It is what puts the field's surfaces where they are: without it, the textured cube's faces sit
+1-3 % of the diagonal too deep, behind a soft shell of density (``make bench-geometry``,
+benchmarks/RESULTS.md). Unbounded captures keep it off until it is measured on them.
+"""
 
 
 def scene_rays(scene: Scene, frames: Sequence[int], device: torch.device) -> tuple[RayBundle, torch.Tensor]:
@@ -120,9 +130,12 @@ class NerfTask(Task):
             "eval_views": int(settings["eval_views"]),
             "random_background": settings.get("random_background"),
             "alpha_loss": settings.get("alpha_loss"),
+            "distortion": None if settings.get("distortion") is None else float(settings["distortion"]),
         }
         if config["batch_rays"] < 1 or config["steps"] < 1 or (config["eval_every"] or 1) < 1:
             raise PointfieldError("--batch-rays, --steps and --eval-every must be positive")
+        if config["distortion"] is not None and not config["distortion"] >= 0:
+            raise PointfieldError(f"--distortion must be 0 or more, got {config['distortion']}")
         return config
 
     def __init__(self, config, device, distributed, progress, *,
@@ -139,6 +152,9 @@ class NerfTask(Task):
             chosen = {"box": box, "unbounded": unbounded,
                       "max_resolution": default_max_resolution(self.scene, unbounded)}
             config["model_options"] = {**chosen, **config["model_options"]}
+        if "distortion" in config and config["distortion"] is None:
+            bounded = config["model"] == "ngp" and not config["model_options"].get("unbounded", False)
+            config["distortion"] = BOUNDED_NGP_DISTORTION if bounded else 0.0
         self.model = self.trained = build_field(config, device)
         self.rays, self.colors = scene_rays(self.scene, self.train_frames, device)
         self.background = torch.as_tensor(self.scene.background, dtype=torch.float32, device=device)
@@ -150,6 +166,8 @@ class NerfTask(Task):
         self.transparency = (transparency_of(self.scene, self.train_frames).to(device)
                              if self.alpha_loss or self.random_background else None)
         self.near, self.far = depth_bounds(self.scene)
+        # A run made before the distortion loss existed was trained without it, and resumes so.
+        self.distortion = float(config.get("distortion", 0.0))
         self.steps_per_epoch = math.ceil(len(self.rays) / config["batch_rays"])
         self.round_steps = config["eval_every"] or min(self.steps_per_epoch, 500)
         self.epochs = math.ceil(config["steps"] / self.round_steps)
@@ -209,6 +227,10 @@ class NerfTask(Task):
         if self.alpha_loss:
             alpha = 1 - self.transparency[indices]
             losses.append(self.alpha_loss * (output.passes[-1].opacity - alpha).abs().mean())
+        if self.distortion:
+            # Each ray's weight drawn into one thin layer; distances in units of the scene's depth range.
+            final = output.passes[-1]
+            losses.append(self.distortion * distortion_loss(final.weights, final.samples, self.far - self.near))
         if self.budget is not None:
             self.budget.update(len(indices), output.samples)
             stats.update(rays=float(len(indices)), samples_per_ray=output.samples / max(len(indices), 1))
@@ -255,6 +277,7 @@ def train(
     background: str | Sequence[float] | None = None,
     random_background: bool | None = None,
     alpha_loss: float | None = None,
+    distortion: float | None = None,
     device: str | None = None,
     seed: int = 0,
     resume: bool = False,
@@ -280,7 +303,9 @@ def train(
     triple) replaces the scene's: images' alpha is composited onto it and so is every render.
     Where the images have alpha, opacity is trained towards it (:mod:`pointfield.training.opacity`):
     ``random_background`` draws a random colour behind each ray (None: on), and ``alpha_loss`` adds
-    ``weight * mean |opacity - alpha|`` to the loss (None: 0, off).
+    ``weight * mean |opacity - alpha|`` to the loss (None: 0, off). ``distortion``: the weight of
+    mip-NeRF 360's distortion loss on the final pass's weights, which draws each ray's weight into
+    one thin layer (None: :data:`BOUNDED_NGP_DISTORTION` for ngp on a bounded scene, else 0).
     ``model_options`` go to the model's constructor (``samples`` for tiny,
     ``coarse_samples``/``fine_samples`` for nerf). ``scene_box`` (ngp only; see
     :func:`pointfield.fields.scene_box.scene_bounds`): "auto", "bounded", "unbounded" or six
@@ -292,7 +317,7 @@ def train(
     settings = {
         "scene": scene, "model": model, "model_options": model_options, "steps": steps,
         "batch_rays": batch_rays, "downscale": downscale, "holdout_every": holdout_every,
-        "background": background, "random_background": random_background, "alpha_loss": alpha_loss, "seed": seed,
+        "background": background, "random_background": random_background, "alpha_loss": alpha_loss, "distortion": distortion, "seed": seed,
         "eval_every": eval_every, "eval_views": eval_views, "learning_rate": learning_rate, "scene_box": scene_box if isinstance(scene_box, str) else list(scene_box),
         "cube_views": cube_views, "cube_size": cube_size,
     }
