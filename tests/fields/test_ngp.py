@@ -4,6 +4,7 @@ import json
 import math
 import shutil
 
+import numpy as np
 import pytest
 import torch
 
@@ -104,7 +105,7 @@ def test_unbounded_interlevel_loss_trains_the_proposal_networks_only(rays_at_the
 NGP_OPTIONS = {"backend": "eager", "levels": 8, "log2_table_size": 14, "max_resolution": 128, "target_samples": 8192,
                "initial_optical_depth": 7.4}
 CUBE = dict(model="ngp", cube_views=24, cube_size=32, device="cpu", progress=False, model_options=NGP_OPTIONS)
-TRAIN_STEPS = 120
+TRAIN_STEPS = 300
 
 
 @pytest.fixture(scope="module")
@@ -115,8 +116,9 @@ def ngp_run(tmp_path_factory):
 
 
 def test_ngp_learns_the_cube(ngp_run):
-    # A healthy run reaches about 22 dB held-out here (30 dB on its training views); a run whose
-    # colour network has died renders the silhouette only, about 17 dB.
+    # A healthy run reaches about 20.4 dB held-out here (19.0 after 120 steps: the cube's box has
+    # room around it, so fewer of the grid's cells fall on the cube); a run whose colour network
+    # has died renders the silhouette only, about 17 dB.
     _, metrics = ngp_run
     assert metrics["psnr"] > 19, metrics
 
@@ -129,8 +131,9 @@ def test_ngp_run_folder_holds_metrics_and_a_checkpoint(ngp_run):
     assert [r["step"] for r in records] == [TRAIN_STEPS // 2, TRAIN_STEPS]
     assert all(r["train_rays"] >= 256 and r["train_samples_per_ray"] > 0 for r in records)
     config = json.loads((out / "config.json").read_text())
-    assert config["model_options"]["box"] == [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
+    assert np.allclose(config["model_options"]["box"], [[-0.6] * 3, [0.6] * 3])  # the cube's aabb, with room
     assert config["model_options"]["unbounded"] is False
+    assert config["distortion"] == 0.01  # on by default for a bounded scene
     assert json.loads((out / "metrics.json").read_text())["steps"] == TRAIN_STEPS
 
 
@@ -167,7 +170,8 @@ def test_unbounded_ngp_trains_a_few_steps_with_a_finite_interlevel_loss(tmp_path
     records = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
     assert len(records) == 2
     assert all(math.isfinite(r["train_auxiliary_loss"]) and r["train_auxiliary_loss"] >= 0 for r in records)
-    assert json.loads((tmp_path / "run" / "config.json").read_text())["model_options"]["unbounded"] is True
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert config["model_options"]["unbounded"] is True and config["distortion"] == 0.0  # not measured unbounded
     assert math.isfinite(metrics["psnr"])
 
 

@@ -3,6 +3,7 @@
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -18,7 +19,7 @@ def cube_scene():
 def test_a_synthetic_scene_with_alpha_is_bounded_by_its_aabb(cube_scene):
     box, unbounded = scene_bounds(cube_scene)
     assert unbounded is False
-    assert box == [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
+    assert np.allclose(box, [[-0.6, -0.6, -0.6], [0.6, 0.6, 0.6]])  # the cube with 10 % room
     assert scene_bounds(cube_scene, "bounded") == (box, False)
 
 

@@ -80,8 +80,8 @@ def test_a_tinynerf_run_is_meshed_over_its_scenes_box(tmp_path):
     train(None, model="tiny", out=tmp_path / "run", steps=1, eval_every=1, cube_views=3, cube_size=8, device="cpu",
           model_options={"samples": 8}, progress=False)
     mesh = mesh_from_density(pointfield.load_run(tmp_path / "run", "cpu"), resolution=16, threshold=0.1)
-    voxel = 1 / 16  # the cube's box, [-0.5, 0.5]^3
-    distance_to_box = np.abs(np.abs(mesh.points).max(axis=1) - 0.5)
+    voxel = 1.2 / 16  # the cube's box, [-0.6, 0.6]^3
+    distance_to_box = np.abs(np.abs(mesh.points).max(axis=1) - 0.6)
     assert distance_to_box.max() < voxel
     axis, sign = largest_axis(mesh.points)
     assert len(set(zip(axis.tolist(), sign.tolist()))) == 6

@@ -108,7 +108,7 @@ def test_made_dataset_reads_back_as_a_blender_scene_with_splits_depth_and_bounds
     assert {name: len(index) for name, index in scene.splits.items()} == {"train": 10, "val": 1, "test": 1}
     assert scene.cameras.fx[0].item() == pytest.approx(0.5 * 32 / np.tan(0.5 * 0.6911112070083618))
     assert scene.near_far[0].tolist() == pytest.approx([4 - np.sqrt(3) / 2, 4 + np.sqrt(3) / 2])
-    assert scene.aabb.tolist() == [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]
+    assert np.allclose(scene.aabb, [[-0.6, -0.6, -0.6], [0.6, 0.6, 0.6]])  # the cube with 10 % room
     assert scene.rgba(0).shape == (32, 32, 4)
 
 
@@ -176,3 +176,27 @@ def test_a_supersampled_pixel_is_the_box_filtered_mean_of_its_rays():
     covered = hits > 0
     assert np.allclose(rgba[covered][:, :3], blocks(fine_rgba[..., :3])[covered] / hits[covered, None], atol=1e-5)
     assert np.array_equal(mask, centre_mask) and np.array_equal(depth, centre_depth)
+
+
+def test_the_textured_cube_is_the_cube_with_detail_on_its_faces():
+    textured = synthetic_scene("textured-cube", views=3, size=64)
+    plain = synthetic_scene("cube", views=3, size=64)
+    for i in range(3):
+        # the same surface seen the same way: textures change colours, not geometry
+        np.testing.assert_array_equal(textured.mask(i), plain.mask(i))
+        np.testing.assert_array_equal(textured.depth(i), plain.depth(i))
+    inside = (plain.mask(0)[:, 1:] > 0) & (plain.mask(0)[:, :-1] > 0)
+
+    def detail(image: np.ndarray) -> float:
+        """Mean absolute difference between horizontal neighbours on the cube."""
+        return float(np.abs(np.diff(image, axis=1))[inside].mean())
+
+    # a plain face is one shade, so only the cube's edges differ from their neighbours
+    assert detail(textured.image(0)) > 3 * detail(plain.image(0))
+
+
+def test_the_command_line_offers_every_synthetic_scene():
+    from pointfield.cli.scene import SYNTHETIC_NAMES
+    from pointfield.scenes import SYNTHETIC_SCENES
+
+    assert set(SYNTHETIC_NAMES) == set(SYNTHETIC_SCENES)

@@ -17,7 +17,7 @@ from typing import Any
 
 SCENE_FORMATS = ("blender", "nerfstudio", "llff", "colmap", "npz")
 WRITABLE_FORMATS = ("nerfstudio", "blender")
-SYNTHETIC_NAMES = ("cube", "spheres", "still-life", "textured")
+SYNTHETIC_NAMES = ("cube", "textured-cube", "spheres", "still-life", "textured")
 # Mirrors of pointfield.scenes.sfm.pipeline's choices, so that --help needs no pycolmap import.
 MATCHING = ("auto", "exhaustive", "retrieval", "sequential")
 MAPPERS = ("auto", "incremental", "global")
@@ -73,7 +73,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     make = verbs.add_parser(
         "make", help="render a synthetic scene to a Blender-format dataset with depth and masks"
     )
-    make.add_argument("name", choices=SYNTHETIC_NAMES, help="which scene (cube: the lesson's coloured cube; textured: one that structure from motion can pose)")
+    make.add_argument("name", choices=SYNTHETIC_NAMES, help="which scene (cube: the lesson's coloured cube; textured-cube: the cube with a texture that pins its faces' depth across views; textured: one that structure from motion can pose)")
     make.add_argument("--out", required=True, help="folder to write")
     make.add_argument("--views", type=int, default=100, help="number of views (default: 100)")
     make.add_argument("--size", type=int, default=100, help="image width and height in pixels (default: 100)")

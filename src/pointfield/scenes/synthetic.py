@@ -42,7 +42,8 @@ Written dataset (Blender format, readable by :func:`read_scene`, nerfstudio and 
 ``<split>/r_<i>_depth.npy`` float32 z-depth in world units (distance along the optical axis, 0
 where no surface); ``<split>/r_<i>_mask.png`` (255 on surfaces). Every 10th view is "test", every
 10th starting at the 5th is "val" (one each for 3 to 19 views, none below 3). The JSON also holds
-``near`` / ``far`` (the scene's bounding sphere seen from the camera distance) and ``aabb``.
+``near`` / ``far`` (the scene's bounding sphere seen from the camera distance) and ``aabb`` (the
+objects' bounds with room around them, :func:`padded_aabb`).
 """
 
 from __future__ import annotations
@@ -219,7 +220,7 @@ class SyntheticScene:
     lights: list[tuple[tuple[float, float, float], float]]
     ambient: float
     bounding_radius: float
-    aabb: tuple[tuple[float, float, float], tuple[float, float, float]]
+    aabb: tuple[tuple[float, float, float], tuple[float, float, float]]  # the objects' bounds, unpadded
     layout: str
 
 
@@ -232,6 +233,14 @@ def _cube() -> SyntheticScene:
         aabb=((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5)),
         layout="sphere",
     )
+
+
+def _textured_cube() -> SyntheticScene:
+    """The cube with a cell texture on its faces: where a plain face looks the same at any depth,
+    a textured one pins its depth across views (the geometry benchmark's scene)."""
+    cube = _cube()
+    cube.objects = [Box((0.0, 0.0, 0.0), 0.5, CUBE_FACE_COLORS, CellTexture(seed=1))]
+    return cube
 
 
 def _ground() -> CheckeredGround:
@@ -290,6 +299,7 @@ def _textured() -> SyntheticScene:
 
 SYNTHETIC_SCENES: dict[str, Callable[[], SyntheticScene]] = {
     "cube": _cube,
+    "textured-cube": _textured_cube,
     "spheres": _spheres,
     "still-life": _still_life,
     "textured": _textured,
@@ -467,8 +477,24 @@ def synthetic_scene(
     near_far = np.tile([near, radius + builder.bounding_radius], (len(cameras), 1))
     metadata = {"path": f"synthetic:{name}", "root": ".", "frames_listed": len(cameras), "layout": layout}
     return Scene(
-        cameras, frames, split_indices(int(views)), None, near_far, np.array(builder.aabb), metadata=metadata
+        cameras, frames, split_indices(int(views)), None, near_far, padded_aabb(builder.aabb), metadata=metadata
     )
+
+
+AABB_MARGIN = 0.1
+"""Room around the objects in a synthetic scene's ``aabb``, as a fraction of their extent on each side."""
+
+
+def padded_aabb(bounds) -> np.ndarray:
+    """``(2, 3)``: the objects' ``bounds`` grown by :data:`AABB_MARGIN` of their extent on each side.
+
+    The ``aabb`` is the region of interest a model reconstructs (the fast field's box). Exactly
+    the objects' bounds would tell it where their surfaces are -- a cube's box *is* the cube --
+    which no real capture's box does; the geometry benchmark scores against those surfaces.
+    """
+    low, high = np.array(bounds, dtype=np.float64)
+    margin = AABB_MARGIN * (high - low)
+    return np.stack([low - margin, high + margin])
 
 
 def make_scene(
