@@ -124,3 +124,24 @@ def test_a_field_of_an_unbounded_scene_has_no_box_to_mesh(tmp_path):
           model_options=options, scene_box="unbounded", progress=False)
     with pytest.raises(PointfieldError, match="unbounded scene .* use --method tsdf"):
         export_mesh(tmp_path / "run", tmp_path / "mesh.ply", method="density", device="cpu", progress=False)
+
+
+def test_what_matter_encloses_is_filled_so_only_the_outside_surface_is_meshed():
+    from skimage.measure import marching_cubes
+
+    from pointfield.geometry.density import fill_enclosed
+
+    # A hollow ball (matter from radius 6 to 9) and, apart from it, a cup open to the outside.
+    axis = np.arange(32) - 15.5
+    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
+    radius = np.sqrt(x**2 + y**2 + z**2)
+    grid = np.where((radius > 6) & (radius < 9), 10.0, 0.0).astype(np.float32)
+    cup = np.zeros((40, 32, 32), np.float32)
+    cup[4:12, 4:28, 4:28] = 10.0
+    cup[6:13, 8:24, 8:24] = 0.0  # hollowed from the top: its inside is joined to the outside
+    fill_enclosed(grid, 1.0)
+    fill_enclosed(cup, 1.0)
+    vertices = marching_cubes(np.pad(grid, 1), level=1.0)[0] - 1
+    distance = np.linalg.norm(vertices - 15.5, axis=1)
+    assert distance.min() > 8  # the inner wall is gone: one sphere, radius 9
+    assert cup[8, 16, 16] == 0.0  # an open cavity is left as it is
