@@ -1,4 +1,4 @@
-"""Nerfacto's proposal sampler, and mip-NeRF 360's interlevel and distortion losses."""
+"""Nerfacto's proposal sampler, and mip-NeRF 360's interlevel loss."""
 
 import pytest
 import torch
@@ -11,7 +11,6 @@ from pointfield.fields.sampling.proposal import (
     ProposalNetwork,
     ProposalSampler,
     distance_from_spacing,
-    distortion_loss,
     initial_bin_edges,
     interlevel_loss,
     outer_weights,
@@ -115,26 +114,6 @@ def test_losses_reject_edges_that_do_not_frame_the_weights():
         interlevel_loss(edges, weights, [(edges, weights[:, :-1])])
     with pytest.raises(PointfieldError, match="field bins"):
         interlevel_loss(edges[:, :-1], weights, [(edges, weights)])
-
-
-def test_distortion_loss_matches_the_quadratic_formula():
-    edges, weights = _random_bins(4, 12, 0.0, 1.0, torch.Generator().manual_seed(8))
-    midpoints, widths = 0.5 * (edges[:, 1:] + edges[:, :-1]), torch.diff(edges, dim=-1)
-    distances = (midpoints[:, :, None] - midpoints[:, None, :]).abs()
-    pairwise = (weights[:, :, None] * weights[:, None, :] * distances).sum((1, 2))
-    expected = (pairwise + (weights**2 * widths).sum(-1) / 3).mean()
-    torch.testing.assert_close(distortion_loss(edges, weights), expected)
-
-
-def test_distortion_loss_prefers_concentrated_weight():
-    edges = torch.linspace(0, 1, 11)[None]
-    spread = torch.full((1, 10), 0.1)
-    peaked = torch.zeros(1, 10)
-    peaked[0, 4] = 1.0
-    assert distortion_loss(edges, peaked) < distortion_loss(edges, spread)
-
-
-# -- the sampler ---------------------------------------------------------------------------------
 
 
 def _sampler(**options):

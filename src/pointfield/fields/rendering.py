@@ -74,11 +74,9 @@ def transmittance_from_optical_depth(
         tensor([1.0000, 0.3679, 1.0000])
     """
     if ray_indices is None:
-        # sum_{j<i}: shift the inclusive sum right rather than subtracting sigma_i delta_i from it,
-        # which would cancel catastrophically after a huge (opaque) interval.
-        inclusive = torch.cumsum(optical_depth, dim=-1)
-        exclusive = torch.cat([torch.zeros_like(inclusive[..., :1]), inclusive[..., :-1]], dim=-1)
-        return torch.exp(-exclusive)
+        # Shifted rather than inclusive minus sigma_i delta_i, which would cancel catastrophically
+        # after a huge (opaque) interval.
+        return torch.exp(-_exclusive_cumsum(optical_depth))
     if optical_depth.shape[0] == 0:
         return optical_depth
     # One global cumulative sum (float64) minus its value where each ray's run starts. Clamping
@@ -103,6 +101,11 @@ def exclusive_sum_along_rays(values: torch.Tensor, ray_indices: torch.Tensor) ->
     return exclusive - exclusive[first][run]
 
 
+def _exclusive_cumsum(values: torch.Tensor) -> torch.Tensor:
+    """``sum_{j<i} values_j`` along the last axis (a shifted cumsum: no cancellation)."""
+    return torch.cat([torch.zeros_like(values[..., :1]), torch.cumsum(values[..., :-1], dim=-1)], dim=-1)
+
+
 def distortion_loss(weights: torch.Tensor, samples: RaySamples, length: float) -> torch.Tensor:
     """Mip-NeRF 360's distortion loss, the mean over rays: small when each ray's weight is one thin layer.
 
@@ -116,8 +119,7 @@ def distortion_loss(weights: torch.Tensor, samples: RaySamples, length: float) -
     middle = 0.5 * (samples.t_starts + samples.t_ends) / length
     deltas = samples.deltas / length
     if samples.ray_indices is None:
-        before = torch.cumsum(weights, dim=-1) - weights
-        weighted_before = torch.cumsum(weights * middle, dim=-1) - weights * middle
+        before, weighted_before = _exclusive_cumsum(weights), _exclusive_cumsum(weights * middle)
         per_ray = (2 * weights * (middle * before - weighted_before) + weights ** 2 * deltas / 3).sum(dim=-1)
         return per_ray.mean() if per_ray.numel() else weights.sum()
     rays = max(int(samples.num_rays), 1)

@@ -5,14 +5,14 @@
 - :mod:`~pointfield.fields.sampling.occupancy`: bounded scenes -- Instant-NGP's occupancy grid
   and the ray marcher that skips empty cells (packed samples).
 - :mod:`~pointfield.fields.sampling.proposal`: unbounded scenes -- nerfacto's proposal
-  networks and sampler, with mip-NeRF 360's interlevel and distortion losses.
+  networks and sampler, with mip-NeRF 360's interlevel loss (its distortion loss, for any
+  samples, is :func:`pointfield.fields.rendering.distortion_loss`).
 """
 
 from pointfield.fields.sampling.occupancy import OccupancyGrid, march_rays, ray_box_intersection
 from pointfield.fields.sampling.proposal import (
     ProposalNetwork,
     ProposalSampler,
-    distortion_loss,
     interlevel_loss,
     proposal_anneal,
 )
@@ -22,7 +22,6 @@ __all__ = [
     "OccupancyGrid",
     "ProposalNetwork",
     "ProposalSampler",
-    "distortion_loss",
     "hierarchical_samples",
     "importance_samples",
     "interlevel_loss",

@@ -309,34 +309,6 @@ def interlevel_loss(
     return loss
 
 
-def distortion_loss(edges: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Mip-NeRF 360's distortion loss (eq. 15), mean over rays: pulls each ray's weight together.
-
-    With bin midpoints ``m_i`` and widths ``d_i`` of ``edges`` ``(R, K + 1)`` and ``weights``
-    ``(R, K)``::
-
-        L = sum_{i,j} w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 d_i
-
-    computed in O(K): as the midpoints increase, the double sum is
-    ``2 sum_i w_i (m_i sum_{j<i} w_j - sum_{j<i} w_j m_j)``. Mip-NeRF 360 applies it in the
-    normalised spacing (``s`` of :func:`spacing_from_distance`, rescaled to [0, 1] between near
-    and far), not in distance, so that the background bins do not dominate.
-    """
-    _check_bins(edges, weights, "distortion")
-    midpoints = 0.5 * (edges[:, 1:] + edges[:, :-1])
-    widths = torch.diff(edges, dim=-1)
-    weight_before = _exclusive_cumsum(weights)
-    moment_before = _exclusive_cumsum(weights * midpoints)
-    cross = 2 * (weights * (midpoints * weight_before - moment_before)).sum(dim=-1)
-    own = (weights**2 * widths).sum(dim=-1) / 3
-    return (cross + own).mean()
-
-
-def _exclusive_cumsum(values: torch.Tensor) -> torch.Tensor:
-    """``sum_{j<i} values_j`` along the last axis (a shifted cumsum: no cancellation)."""
-    return torch.cat([torch.zeros_like(values[..., :1]), torch.cumsum(values[..., :-1], dim=-1)], dim=-1)
-
-
 def _check_bins(edges: torch.Tensor, weights: torch.Tensor, what: str) -> None:
     """Edges ``(R, K + 1)`` must frame weights ``(R, K)``: a mismatch would silently misalign bins."""
     if edges.ndim != 2 or weights.ndim != 2 or edges.shape != (weights.shape[0], weights.shape[1] + 1):
