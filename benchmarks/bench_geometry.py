@@ -49,7 +49,6 @@ from pointfield.geometry import export_cloud, export_mesh
 from pointfield.geometry.compare import sample_mesh, surface_scores
 from pointfield.geometry.meshes import mesh_from_volume, rendered_depth_maps
 from pointfield.geometry.tsdf import TSDFVolume, fuse
-from pointfield.scenes import synthetic_scene
 from pointfield.scenes.heldout import open_scene, training_and_heldout
 from pointfield.scenes.synthetic import make_scene
 from pointfield.splats.loss import GEOMETRY_WEIGHTS
@@ -221,11 +220,9 @@ def main() -> int:
             return surface_scores(points, truth, threshold, unit=diagonal)
 
         # The ceiling: the scene's own depth maps of the same training views, fused the same way.
-        exact = synthetic_scene(name, views=args.views, size=args.size)
-        pad = 0.1 * (high - low)
-        volume = TSDFVolume.create(low - pad, high + pad, args.resolution)
-        fuse(volume, [(torch.from_numpy(exact.depth(int(i))), torch.from_numpy(exact.image(int(i)))) for i in training],
-             exact.cameras[training])
+        volume = TSDFVolume.create(*scene.aabb, args.resolution)  # the scene's box, as the models have
+        fuse(volume, [(torch.from_numpy(scene.depth(int(i))), torch.from_numpy(scene.image(int(i)))) for i in training],
+             scene.cameras[training])
         ceiling = mesh_from_volume(volume)
         rows.append(score_row(name, "exact depth", "mesh (ceiling)", scored(sample_mesh(ceiling, args.mesh_samples)), None))
         record.figures[f"{name}/ceiling"] = scored(sample_mesh(ceiling, args.mesh_samples))

@@ -48,6 +48,7 @@ objects' bounds with room around them, :func:`padded_aabb`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections.abc import Callable
@@ -239,8 +240,7 @@ def _textured_cube() -> SyntheticScene:
     """The cube with a cell texture on its faces: where a plain face looks the same at any depth,
     a textured one pins its depth across views (the geometry benchmark's scene)."""
     cube = _cube()
-    cube.objects = [Box((0.0, 0.0, 0.0), 0.5, CUBE_FACE_COLORS, CellTexture(seed=1))]
-    return cube
+    return dataclasses.replace(cube, objects=[dataclasses.replace(cube.objects[0], texture=CellTexture(seed=1))])
 
 
 def _ground() -> CheckeredGround:
