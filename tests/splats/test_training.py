@@ -161,6 +161,24 @@ def test_commands_train_export_and_render(tiny_scene, tmp_path, capsys):
         assert not (tmp_path / "g.gif").exists()
 
 
+def test_an_antialiased_run_records_its_mode_and_renders_in_it(tiny_scene, tmp_path):
+    import pointfield
+    from pointfield.splats.run import camera_matrices
+
+    assert main(["splat", "train", str(tiny_scene), "--out", str(tmp_path / "run"), "--steps", "4",
+                 "--initial-splats", "200", "--antialiased", "--no-progress"]) == 0
+    run = pointfield.load_run(tmp_path / "run")
+    assert run.config["antialiased"] is True
+    opacity = run.render(run.scene.cameras[[0]], outputs=("opacity",))[0]["opacity"]
+    g = run.gaussians
+    viewmats, Ks = camera_matrices(run.scene.cameras[[0]], run.device)
+    rendered = {mode: rasterization(g.means, g.quats, g.scales, g.opacities, g.sh_coefficients, viewmats, Ks, 24, 24,
+                                    sh_degree=g.active_sh_degree, antialiased=mode)[2][0].detach()
+                for mode in (False, True)}
+    torch.testing.assert_close(opacity, rendered[True].clamp(0, 1))
+    assert float((rendered[False] - rendered[True]).abs().max()) > 1e-3, "the two modes should differ here"
+
+
 def test_a_colmap_scene_initialises_from_its_sparse_points(shared_data):
     from pointfield.scenes import read_scene
     from pointfield.splats.train import initial_gaussians

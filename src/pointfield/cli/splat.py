@@ -51,6 +51,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--flatness", type=float, default=None, metavar="WEIGHT",
                        help="weight of the splats' mean smallest scale in the loss: discs along surfaces, "
                             "for geometry export (default off; 1 measured)")
+    train.add_argument("--antialiased", action="store_true",
+                       help="rasterize in gsplat's antialiased mode (Mip-Splatting's 2D filter): outlines "
+                            "where they are, for geometry export (default: classic 3DGS)")
     train.add_argument("--max-splats", type=int, default=DEFAULT_MAX_SPLATS,
                        help=f"densification never grows beyond this many splats (default {DEFAULT_MAX_SPLATS:,})")
     train.add_argument("--initial-splats", type=int, default=20_000,
@@ -111,7 +114,8 @@ def run_train(args: argparse.Namespace) -> int:
         metrics = train(
             args.scene, out=args.out, steps=args.steps, max_time=args.max_time, downscale=args.downscale,
             holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss,
-            opacity_entropy=args.opacity_entropy, flatness=args.flatness, device=args.device,
+            opacity_entropy=args.opacity_entropy, flatness=args.flatness, antialiased=args.antialiased,
+            device=args.device,
             seed=args.seed,
             resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,
             init=args.init, eval_every=args.eval_every, progress=args.progress,

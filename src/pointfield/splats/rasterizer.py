@@ -109,7 +109,8 @@ class Projection:
 
     ``means2d`` ``(N, 2)`` pixel coordinates, ``conics`` ``(N, 3)`` the upper triangle
     ``(a, b, c)`` of ``Sigma_2d^-1``, ``depths`` ``(N,)`` camera z, ``radii`` ``(N,)`` the 3-sigma
-    half-width in pixels (0 where not visible), ``visible`` ``(N,)`` bool.
+    half-width in pixels (0 where not visible), ``visible`` ``(N,)`` bool, ``compensations``
+    ``(N,)`` the antialiased mode's opacity factor ``sqrt(det(Sigma_2d - 0.3 I) / det(Sigma_2d))``.
     """
 
     means2d: torch.Tensor
@@ -117,6 +118,7 @@ class Projection:
     depths: torch.Tensor
     radii: torch.Tensor
     visible: torch.Tensor
+    compensations: torch.Tensor
 
 
 def project_gaussians(
@@ -157,9 +159,8 @@ def project_gaussians(
     # J = [[fx/z, 0, -fx tx/z^2], [0, fy/z, -fy ty/z^2]]
     row_x = (fx / z_safe)[:, None] * axes[:, 0] - (fx * tx / z_safe**2)[:, None] * axes[:, 2]
     row_y = (fy / z_safe)[:, None] * axes[:, 1] - (fy * ty / z_safe**2)[:, None] * axes[:, 2]
-    a = (row_x * row_x).sum(-1) + SCREEN_DILATION
-    b = (row_x * row_y).sum(-1)
-    c = (row_y * row_y).sum(-1) + SCREEN_DILATION
+    a_undilated, b, c_undilated = (row_x * row_x).sum(-1), (row_x * row_y).sum(-1), (row_y * row_y).sum(-1)
+    a, c = a_undilated + SCREEN_DILATION, c_undilated + SCREEN_DILATION
     determinant = a * c - b * b
     positive = determinant > 0
     determinant_safe = torch.where(positive, determinant, torch.ones_like(determinant))
@@ -172,7 +173,11 @@ def project_gaussians(
     u, v = means2d.detach().unbind(-1)
     on_screen = (u + radii > 0) & (u - radii < width) & (v + radii > 0) & (v - radii < height)
     visible = in_depth & positive & on_screen
-    return Projection(means2d, conics, z, torch.where(visible, radii, torch.zeros_like(radii)), visible)
+    # A disc seen edge on has an undilated determinant of about 0, which rounding can make
+    # negative: the floor keeps sqrt's gradient finite there (0 through the clamp, not 0 x inf).
+    compensations = torch.sqrt(torch.clamp_min((a_undilated * c_undilated - b * b) / determinant_safe, 1e-12))
+    return Projection(means2d, conics, z, torch.where(visible, radii, torch.zeros_like(radii)), visible,
+                      compensations)
 
 
 _FUSED_PROJECT = CompiledOrEager(project_gaussians, "the splat projection")
@@ -198,6 +203,7 @@ def rasterization(
     splats_per_slice: int = 64,
     backend: str = "auto",
     median_depth: bool = False,
+    antialiased: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
     """Render N Gaussians into C cameras; differentiable with respect to every tensor input.
 
@@ -216,7 +222,12 @@ def rasterization(
       elsewhere to :data:`BLOCK_ELEMENTS` with gradients and :data:`BLOCK_ELEMENTS_NO_GRAD` without);
     - ``backend``: whether rendering compiles its kernels (:mod:`pointfield.compiling`);
     - ``median_depth``: also render the median depth (step 5), into ``meta["median_depths"]``
-      (no gradient; off by default, so that training does not pay for it).
+      (no gradient; off by default, so that training does not pay for it);
+    - ``antialiased``: gsplat's "antialiased" mode (Mip-Splatting's 2D filter): each opacity is
+      scaled by ``sqrt(det(Sigma_2d - 0.3 I) / det(Sigma_2d))``, so that the dilation of step 1
+      spreads a splat's coverage instead of adding to it. Without it a splat much smaller than
+      a pixel still covers one, and a surface of such splats renders fatter than it is by about
+      a pixel at its outline.
 
     Where no gradient can flow (under ``torch.no_grad()``, or when no input requires one), the
     compositing takes its in-place path, :func:`composite_tiles_no_grad`: the same images, to
@@ -274,8 +285,9 @@ def rasterization(
         if backgrounds is not None:
             background = backgrounds if backgrounds.ndim == 1 else backgrounds[i]
         composite = composite_tiles if differentiable else composite_tiles_no_grad
+        view_opacities = opacities * projection.compensations if antialiased else opacities
         image, depth, alpha, median = composite(
-            means2d[i], projection.conics, opacities, view_colors, projection.depths,
+            means2d[i], projection.conics, view_opacities, view_colors, projection.depths,
             projection.visible, width, height, background, tile_size, max_block_elements,
             splats_per_slice, backend, median_depth,
         )

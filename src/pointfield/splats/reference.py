@@ -39,6 +39,7 @@ def rasterization_reference(
     backgrounds: torch.Tensor | None = None,
     near_plane: float = 0.01,
     far_plane: float = 1e10,
+    antialiased: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Render like :func:`~pointfield.splats.rasterizer.rasterization`: ``(colors, depths, alphas)``."""
     images, depth_images, alpha_images = [], [], []
@@ -70,21 +71,24 @@ def rasterization_reference(
             rotation = quaternion_to_rotation(quats[i][None])[0]
             sigma_world = rotation @ torch.diag(scales[i] ** 2) @ rotation.T
             sigma_2d = jacobian @ rotation_cam @ sigma_world @ rotation_cam.T @ jacobian.T
-            sigma_2d = sigma_2d + SCREEN_DILATION * torch.eye(2, dtype=means.dtype)
-            if float(torch.linalg.det(sigma_2d.detach())) <= 0:
+            dilated = sigma_2d + SCREEN_DILATION * torch.eye(2, dtype=means.dtype)
+            if float(torch.linalg.det(dilated.detach())) <= 0:
                 continue
+            # Antialiased: the opacity scaled so the dilation spreads the splat's coverage.
+            opacity = opacities[i] * torch.sqrt(torch.linalg.det(sigma_2d) / torch.linalg.det(dilated)) \
+                if antialiased else opacities[i]
             mean_2d = torch.stack([fx * x / z + cx, fy * y / z + cy])
-            splats.append((float(z.detach()), i, z, mean_2d, torch.linalg.inv(sigma_2d)))
+            splats.append((float(z.detach()), i, z, mean_2d, torch.linalg.inv(dilated), opacity))
         splats.sort(key=lambda splat: splat[0])
 
         transmittance = torch.ones(height, width, dtype=means.dtype)
         done = torch.zeros(height, width, dtype=torch.bool)
         image = torch.zeros(height, width, view_colors.shape[-1], dtype=means.dtype)
         depth = torch.zeros(height, width, dtype=means.dtype)
-        for _, i, z, mean_2d, inverse in splats:
+        for _, i, z, mean_2d, inverse, opacity in splats:
             d = torch.stack([u - mean_2d[0], v - mean_2d[1]], dim=-1)              # (H, W, 2)
             mahalanobis = torch.einsum("hwi,ij,hwj->hw", d, inverse, d)
-            alpha = torch.clamp(opacities[i] * torch.exp(-0.5 * mahalanobis), max=MAX_ALPHA)
+            alpha = torch.clamp(opacity * torch.exp(-0.5 * mahalanobis), max=MAX_ALPHA)
             used = (~done) & (mahalanobis <= SIGMA_EXTENT**2) & (alpha >= MIN_ALPHA)
             after = transmittance * (1 - alpha)
             stops = used & (after < MIN_TRANSMITTANCE)

@@ -51,7 +51,7 @@ def camera_matrices(cameras: Cameras, device: torch.device) -> tuple[torch.Tenso
 def render_views(
     gaussians: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int,
     background: torch.Tensor, sh_degree: int | None = None, rasterizer: str = "pointfield",
-    median_depth: bool = False,
+    median_depth: bool = False, antialiased: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
     """Render ``gaussians`` into cameras: ``(colors (C, H, W, 3), depths, alphas, meta)``.
 
@@ -59,10 +59,12 @@ def render_views(
     or "auto" (:mod:`pointfield.splats.gsplat_rasterizer`). ``median_depth``: also
     ``meta["median_depths"]`` ``(C, H, W)`` (camera z, as the rasterizer gives it); gsplat
     renders none, so with gsplat pointfield's rasterizer renders it, in a second pass.
+    ``antialiased``: the rasterizers' antialiased mode (for splats trained in it).
     """
     chosen = choose_rasterizer(rasterizer, gaussians.means.device)
     splats = (gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities, gaussians.sh_coefficients)
-    options = {"sh_degree": gaussians.active_sh_degree if sh_degree is None else sh_degree, "backgrounds": background}
+    options = {"sh_degree": gaussians.active_sh_degree if sh_degree is None else sh_degree, "backgrounds": background,
+               "antialiased": antialiased}
     if chosen == "pointfield":
         return rasterization(*splats, viewmats, Ks, width, height, **options, median_depth=median_depth)
     colors, depths, alphas, meta = rasterization_gsplat(*splats, viewmats, Ks, width, height, **options)
@@ -75,7 +77,7 @@ def render_views(
 @torch.no_grad()
 def render_camera(
     gaussians: Gaussians, cameras: Cameras, index: int, background: torch.Tensor, rasterizer: str = "pointfield",
-    outputs: Sequence[str] = OUTPUTS,
+    outputs: Sequence[str] = OUTPUTS, antialiased: bool = False,
 ) -> View:
     """Camera ``index`` rendered: ``rgb`` ``(H, W, 3)``, expected ``depth`` and ``opacity`` ``(H, W)``,
     and ``median_depth`` ``(H, W)`` where ``outputs`` asks for it.
@@ -89,7 +91,7 @@ def render_camera(
     width, height = int(cameras.width[index]), int(cameras.height[index])
     median = "median_depth" in outputs
     colors, depths, alphas, meta = render_views(gaussians, viewmats, Ks, width, height, background,
-                                                rasterizer=rasterizer, median_depth=median)
+                                                rasterizer=rasterizer, median_depth=median, antialiased=antialiased)
     axis_cosine = cameras.rays(index).axis_cosine.to(device, depths.dtype)
     view = {
         "rgb": colors[0].clamp(0, 1),
@@ -102,7 +104,8 @@ def render_camera(
 
 
 class SplatRun(SceneRun):
-    """A trained splat run: its Gaussians (all SH degrees the run reached) render any camera."""
+    """A trained splat run: its Gaussians (all SH degrees the run reached) render any camera,
+    in the rasterizer mode they were trained in (``config["antialiased"]``; classic before it)."""
 
     tasks = (TASK,)
 
@@ -132,7 +135,8 @@ class SplatRun(SceneRun):
         return self.module
 
     def render_one(self, cameras: Cameras, index: int, outputs: Sequence[str] = OUTPUTS) -> View:
-        return render_camera(self.gaussians, cameras, index, self.background, self.rasterizer, outputs)
+        return render_camera(self.gaussians, cameras, index, self.background, self.rasterizer, outputs,
+                             antialiased=bool(self.config.get("antialiased", False)))
 
 
 def export(run: str | os.PathLike[str], out: str | os.PathLike[str]) -> dict[str, Any]:
