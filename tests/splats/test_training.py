@@ -210,3 +210,35 @@ def test_a_scene_without_points_or_box_starts_at_random_around_its_cameras(tmp_p
     assert len(gaussians) == 50
     distances = np.linalg.norm(scene.cameras.centers.numpy(), axis=1).mean()
     assert gaussians.means.detach().abs().max() < distances / 2
+
+
+def test_depth_distortion_is_the_double_sum_over_each_pixels_splats():
+    from pointfield.splats.loss import depth_distortion
+
+    generator = torch.Generator().manual_seed(0)
+    weights = torch.rand(6, 5, 8, generator=generator, dtype=torch.float64) / 8   # (H, W, splats), sum <= 1
+    z = 2 + 3 * torch.rand(6, 5, 8, generator=generator, dtype=torch.float64)
+    brute = (weights[..., :, None] * weights[..., None, :] * (z[..., :, None] - z[..., None, :]) ** 2).sum((-1, -2))
+    closed = depth_distortion((weights * z).sum(-1), (weights * z * z).sum(-1), weights.sum(-1), scene_scale=2.0)
+    assert float(closed) == pytest.approx(float(brute.mean()) / 4, rel=1e-9)
+
+
+def test_depth_distortion_of_rendered_layers_grows_with_their_gap():
+    from pointfield.splats.loss import depth_distortion
+
+    # Two half-transparent discs one behind the other, facing an identity camera.
+    def distortion(gap):
+        means = torch.tensor([[0.0, 0.0, 4.0], [0.0, 0.0, 4.0 + gap]], dtype=torch.float64)
+        quats = torch.tensor([[1.0, 0, 0, 0]], dtype=torch.float64).repeat(2, 1)
+        scales = torch.tensor([[0.5, 0.5, 1e-4]], dtype=torch.float64).repeat(2, 1)
+        z = means[:, 2:]
+        K = torch.tensor([[[40.0, 0, 20], [0, 40.0, 20], [0, 0, 1]]], dtype=torch.float64)
+        colors, depths, alphas, _ = rasterization(means, quats, scales, torch.full((2,), 0.5, dtype=torch.float64),
+                                                  z * z, torch.eye(4, dtype=torch.float64)[None], K, 40, 40)
+        return float(depth_distortion(depths[0], colors[0, ..., 0], alphas[0], scene_scale=1.0))
+
+    assert distortion(0.0) == pytest.approx(0, abs=1e-9)
+    # Squared distances: twice the gap, four times the cost (less a little: the farther disc
+    # covers fewer pixels).
+    assert distortion(0.2) == pytest.approx(4 * distortion(0.1), rel=0.05)
+    assert distortion(0.1) > 0

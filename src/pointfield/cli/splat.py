@@ -51,6 +51,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--flatness", type=float, default=None, metavar="WEIGHT",
                        help="weight of the splats' mean smallest scale in the loss: discs along surfaces, "
                             "for geometry export (default off; 1 measured)")
+    train.add_argument("--depth-distortion", type=float, default=None, metavar="WEIGHT",
+                       help="weight of 2DGS's depth distortion in the loss: each pixel's splats in one thin "
+                            "layer, for geometry export (default off; 100 measured, see docs/geometry.md)")
     train.add_argument("--antialiased", action="store_true",
                        help="rasterize in gsplat's antialiased mode (Mip-Splatting's 2D filter): outlines "
                             "where they are, for geometry export (default: classic 3DGS)")
@@ -115,6 +118,7 @@ def run_train(args: argparse.Namespace) -> int:
             args.scene, out=args.out, steps=args.steps, max_time=args.max_time, downscale=args.downscale,
             holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss,
             opacity_entropy=args.opacity_entropy, flatness=args.flatness, antialiased=args.antialiased,
+            depth_distortion=args.depth_distortion,
             device=args.device,
             seed=args.seed,
             resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,

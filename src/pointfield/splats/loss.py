@@ -1,14 +1,13 @@
-"""The 3DGS photometric loss, ``0.8 L1 + 0.2 (1 - SSIM)``, and two geometry terms, differentiable.
+"""The 3DGS photometric loss, ``0.8 L1 + 0.2 (1 - SSIM)``, and three geometry terms, differentiable.
 
 SSIM is :func:`pointfield.metrics.ssim`, the same function that scores held-out views, so the
 loss and the reported metric cannot drift apart.
 
-The geometry terms, :func:`opacity_entropy` and :func:`flatness`, are off unless asked for
-(``--opacity-entropy``, ``--flatness``; ``GEOMETRY_WEIGHTS`` are the weights measured): they
-trade appearance for geometry. On lego, ``make bench-geometry`` (benchmarks/RESULTS.md, 300 s
-each, same run) gave 29.47 dB held out with them against 31.25 dB without, and in the next run
-29.80 against 30.46 dB; what they gain on
-the cube's mesh and cloud is in docs/geometry.md ("Accuracy against known surfaces").
+The geometry terms, :func:`opacity_entropy`, :func:`flatness` and :func:`depth_distortion`, are
+off unless asked for (``--opacity-entropy``, ``--flatness``, ``--depth-distortion``;
+``GEOMETRY_WEIGHTS`` are the weights measured): they trade appearance for geometry. What they
+cost on lego and gain on the textured cube, ``make bench-geometry`` measures in one run
+(benchmarks/RESULTS.md; docs/geometry.md, "Accuracy against known surfaces").
 """
 
 from __future__ import annotations
@@ -18,7 +17,7 @@ import torch
 from pointfield.metrics import ssim
 
 SSIM_WEIGHT = 0.2
-GEOMETRY_WEIGHTS = {"opacity_entropy": 0.01, "flatness": 1.0}
+GEOMETRY_WEIGHTS = {"opacity_entropy": 0.01, "flatness": 1.0, "depth_distortion": 100.0}
 
 
 def splat_loss(prediction: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -45,3 +44,15 @@ def flatness(scales: torch.Tensor, scene_scale: float) -> torch.Tensor:
     a surface instead of filling its inside, so that rendered depth is the surface's.
     """
     return scales.min(dim=1).values.mean() / scene_scale
+
+
+def depth_distortion(depth_sum: torch.Tensor, depth_squared_sum: torch.Tensor, alpha: torch.Tensor,
+                     scene_scale: float) -> torch.Tensor:
+    """2DGS's depth distortion, ``sum_ij w_i w_j (z_i - z_j)^2`` per pixel, mean over pixels.
+
+    With ``alpha = sum_i w_i`` (``(H, W)``), ``depth_sum = sum_i w_i z_i`` and ``depth_squared_sum
+    = sum_i w_i z_i^2`` (the splats' camera z and its square composited), the double sum is
+    ``2 (alpha sum w z^2 - (sum w z)^2)``: no pairs needed. Distances in units of
+    ``scene_scale``. As a loss it draws each pixel's splats into one thin layer.
+    """
+    return (2 * (alpha * depth_squared_sum - depth_sum * depth_sum)).clamp_min(0).mean() / scene_scale**2

@@ -17,10 +17,11 @@ twentieth of it for the higher bands). Where the images have alpha (objects on a
 background), ``0.1 mean |rendered opacity - alpha|`` is added, so that no splat haze lingers in
 empty space and no surface the colour of the background turns transparent (as for the fields:
 :mod:`pointfield.training.opacity`; a random background per image instead cost 0.7 dB on the
-synthetic cube). Asked for (``opacity_entropy``, ``flatness``), the splats' mean opacity entropy
-and their mean smallest scale over the scene scale are added too, which make splats opaque discs
-on the surface rather than faint blobs filling a solid object: better geometry from depth, at a
-cost in PSNR (:mod:`pointfield.splats.loss`). Asked for (``antialiased``), splats train and
+synthetic cube). Asked for (``opacity_entropy``, ``flatness``, ``depth_distortion``), the
+splats' mean opacity entropy, their mean smallest scale over the scene scale and (from step
+``DEPTH_DISTORTION_FROM``) the spread of each pixel's splats in depth are added too, which make
+splats opaque discs in one layer on the surface rather than faint blobs filling a solid object:
+better geometry from depth, at a cost in PSNR (:mod:`pointfield.splats.loss`). Asked for (``antialiased``), splats train and
 render in the rasterizer's antialiased mode (:func:`~pointfield.splats.rasterizer.rasterization`),
 where a surface of splats smaller than a pixel is drawn no fatter than it is: in classic mode the
 true cube's surface, tiled with small flat splats, renders 12 % more outline pixels than the
@@ -49,6 +50,7 @@ import numpy as np
 import torch
 
 from pointfield.errors import PointfieldError
+from pointfield.fields.encodings.spherical_harmonics import sh_to_rgb
 from pointfield.metrics import psnr_from_mse
 from pointfield.scenes.heldout import (
     depth_range,
@@ -61,7 +63,13 @@ from pointfield.scenes.paths import scene_centre_and_up
 from pointfield.scenes.scene import Scene
 from pointfield.splats.densification import DefaultStrategy
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
-from pointfield.splats.loss import flatness, opacity_entropy, splat_loss
+from pointfield.splats.loss import (
+    depth_distortion,
+    flatness,
+    opacity_entropy,
+    splat_loss,
+)
+from pointfield.splats.rasterizer import rasterization
 from pointfield.splats.run import (
     TASK,
     camera_matrices,
@@ -90,6 +98,9 @@ LEARNING_RATES = {
     "sh_rest": 2.5e-3 / 20,
 }
 FINAL_MEANS_LEARNING_RATE_FRACTION = 0.01
+DEPTH_DISTORTION_FROM = 1000
+"""The step from which the depth distortion (when asked for) is on: 2DGS starts it late too, once
+densification has put splats where the surfaces are."""
 
 
 def scene_scale(scene: Scene) -> float:
@@ -152,6 +163,7 @@ class SplatTask(Task):
             "opacity_entropy": settings.get("opacity_entropy"),
             "flatness": settings.get("flatness"),
             "antialiased": bool(settings.get("antialiased")),
+            "depth_distortion": settings.get("depth_distortion"),
         }
         if min(config["steps"], config["max_splats"], config["initial_splats"], config["eval_every"]) < 1:
             raise PointfieldError("--steps, --max-splats and --eval-every must be positive")
@@ -195,6 +207,7 @@ class SplatTask(Task):
         self.opacity_entropy = float(config.get("opacity_entropy") or 0.0)
         self.flatness = float(config.get("flatness") or 0.0)
         self.antialiased = bool(config.get("antialiased", False))  # classic in runs made before it
+        self.depth_distortion = float(config.get("depth_distortion") or 0.0)
         self.epochs = math.ceil(total / config["eval_every"])
         self.evaluated = self.heldout_frames[: max(1, config["eval_views"])]
         self.identity = {"task": TASK, "sh_degree": gaussians.sh_degree}
@@ -232,11 +245,16 @@ class SplatTask(Task):
         self.optimizer.param_groups[0]["lr"] = (
             self.means_learning_rate * FINAL_MEANS_LEARNING_RATE_FRACTION ** (done / self.config["steps"])
         )
-        colors, _, alphas, meta = render_views(gaussians, self.viewmats[[view]], self.Ks[[view]], *self.sizes[view],
-                                               self.background, antialiased=self.antialiased)
+        distortion_wanted = self.depth_distortion and done >= DEPTH_DISTORTION_FROM
+        if distortion_wanted:
+            colors, depths, alphas, meta = self._render_with_squared_depth(view)
+            rendered = colors[0, ..., :3]
+        else:
+            colors, _, alphas, meta = render_views(gaussians, self.viewmats[[view]], self.Ks[[view]],
+                                                   *self.sizes[view], self.background, antialiased=self.antialiased)
+            rendered = colors[0]
         meta["means2d"].retain_grad()
         self.last_meta, self.last_size = meta, self.sizes[view]
-        rendered = colors[0]
         target = self.images[view]
         mse = float(torch.mean((rendered.detach().clamp(0, 1) - target) ** 2))
         loss = splat_loss(rendered, target)
@@ -246,8 +264,26 @@ class SplatTask(Task):
             loss = loss + self.opacity_entropy * opacity_entropy(gaussians.opacities)
         if self.flatness:
             loss = loss + self.flatness * flatness(gaussians.scales, self.strategy.scene_scale)
+        if distortion_wanted:
+            loss = loss + self.depth_distortion * depth_distortion(depths[0], colors[0, ..., 3], alphas[0],
+                                                                   self.strategy.scene_scale)
         return Step(loss,
                     {"psnr": psnr_from_mse(mse), "splats": float(len(gaussians))})
+
+    def _render_with_squared_depth(self, view: int):
+        """Render training ``view`` with a fourth colour channel: each splat's squared camera z,
+        composited (for the depth distortion)."""
+        gaussians, viewmat = self.model, self.viewmats[view]
+        camera_centre = -viewmat[:3, :3].T @ viewmat[:3, 3]
+        z = gaussians.means @ viewmat[2, :3] + viewmat[2, 3]
+        features = torch.cat([
+            sh_to_rgb(gaussians.sh_coefficients, gaussians.means - camera_centre, gaussians.active_sh_degree),
+            (z * z)[:, None],
+        ], dim=-1)
+        background = torch.cat([self.background, self.background.new_zeros(1)])
+        return rasterization(gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities, features,
+                             self.viewmats[[view]], self.Ks[[view]], *self.sizes[view], backgrounds=background,
+                             antialiased=self.antialiased)
 
     def evaluate(self, epoch: int) -> dict[str, float]:
         scores, _ = heldout_scores(self.render, self.scene, self.evaluated)
@@ -278,6 +314,7 @@ def train(
     opacity_entropy: float | None = None,
     flatness: float | None = None,
     antialiased: bool = False,
+    depth_distortion: float | None = None,
     device: str | None = None,
     seed: int = 0,
     resume: bool = False,
@@ -297,16 +334,16 @@ def train(
     views are scored. ``max_splats`` (default 200,000) caps densification (a message says when
     it bites). ``alpha_loss``: weight of the mean absolute difference between rendered opacity
     and the images' alpha, added to the loss where the images have alpha (default 0.1; 0 turns
-    it off). ``opacity_entropy`` and ``flatness``: weights of the geometry terms of
-    :mod:`pointfield.splats.loss` (default off; ``GEOMETRY_WEIGHTS`` there are the ones
-    measured). ``antialiased``: train (and render) in the rasterizer's antialiased mode.
+    it off). ``opacity_entropy``, ``flatness`` and ``depth_distortion``: weights of the
+    geometry terms of :mod:`pointfield.splats.loss` (default off; ``GEOMETRY_WEIGHTS`` there are
+    the ones measured). ``antialiased``: train (and render) in the rasterizer's antialiased mode.
     Resuming, only ``steps`` and ``max_splats`` may change. Returns the final metrics
     (also in ``out/metrics.json``).
     """
     settings = {
         "scene": scene, "steps": steps, "downscale": downscale, "holdout_every": holdout_every,
         "background": background, "alpha_loss": alpha_loss, "opacity_entropy": opacity_entropy,
-        "flatness": flatness, "antialiased": antialiased, "seed": seed,
+        "flatness": flatness, "antialiased": antialiased, "depth_distortion": depth_distortion, "seed": seed,
         "max_splats": max_splats, "initial_splats": initial_splats, "init": init,
         "eval_every": eval_every, "eval_views": eval_views, "cube_views": cube_views, "cube_size": cube_size,
     }
