@@ -2,7 +2,8 @@
 
 For each scene made by ``scene make`` (analytic surfaces, so the true surface is sampled densely:
 ``--truth-points`` uniform samples), the hash-grid field (ngp) and splats are trained at
-``--size`` pixels for at most ``--max-time`` seconds each, then their mesh (TSDF at
+``--size`` pixels for at most ``--max-time`` seconds each (splats: their default schedule,
+``SPLAT_STEPS``, or that time, whichever ends first), then their mesh (TSDF at
 ``--resolution``^3, :func:`pointfield.geometry.export_mesh`) and cloud
 (:func:`pointfield.geometry.export_cloud`) are exported and scored against the truth
 (:mod:`pointfield.geometry.compare`: Chamfer = mean of accuracy and completeness, as in the DTU
@@ -18,12 +19,13 @@ density at instant-ngp's level (``method="density"``). Beside them, same run:
   wheel here: see ``bench_tsdf.py``).
 
 Then, unless ``--lego-time 0``, NeRF-synthetic lego at 100 x 100: the hash-grid field with
-random backgrounds (the default), with the fixed white one, and with the alpha loss instead;
+random backgrounds (the default, with its distortion loss), the same without the distortion
+loss, with the fixed white background, and with the alpha loss instead;
 splats with the geometry recipe (``SPLAT_GEOMETRY``: the geometry terms of
 :mod:`pointfield.splats.loss` and the rasterizer's antialiased mode, which the cube's splats are
 trained with), with the alpha loss alone (the default), and with colour only; each trained for
-``--lego-time`` seconds, held-out PSNR
-and opacity error side by side (opacity training must not cost PSNR); then the mesh of the first
+at most ``--lego-time`` seconds (the splats as above), held-out PSNR and opacity error side by
+side (opacity training must not cost PSNR); then the mesh of the first
 exported at 256^3, timed end to end (open the run, render the 90 training views, fuse, mesh,
 write) against the issue's 60 s.
 
