@@ -22,8 +22,8 @@ Then, unless ``--lego-time 0``, NeRF-synthetic lego at 100 x 100: the hash-grid 
 random backgrounds (the default, with its distortion loss), the same without the distortion
 loss, with the fixed white background, and with the alpha loss instead;
 splats with the geometry recipe (``SPLAT_GEOMETRY``: the geometry terms of
-:mod:`pointfield.splats.loss` and the rasterizer's antialiased mode, which the cube's splats are
-trained with), with the alpha loss alone (the default), and with colour only; each trained for
+:mod:`pointfield.splats.loss` and the rasterizer's antialiased mode with Mip-Splatting's 0.1 px^2
+dilation, which the cube's splats are trained with), with the alpha loss alone (the default), and with colour only; each trained for
 at most ``--lego-time`` seconds (the splats as above), held-out PSNR and opacity error side by
 side (opacity training must not cost PSNR); then the mesh of the first
 exported at 256^3, timed end to end (open the run, render the 90 training views, fuse, mesh,
@@ -62,10 +62,10 @@ LEGO = Path(__file__).resolve().parents[2] / "shared" / "data" / "nerf" / "lego_
 GOAL_CHAMFER = 0.005
 GOAL_FSCORE = 0.9
 THRESHOLD = 0.01
-SPLAT_GEOMETRY = {**GEOMETRY_WEIGHTS, "antialiased": True}
+SPLAT_GEOMETRY = {**GEOMETRY_WEIGHTS, "antialiased": True, "screen_dilation": 0.1}
 """How splats train for geometry: opaque discs in one layer (the geometry terms), outlines where
-they are (antialiased: in classic mode a surface of small splats renders about a pixel fatter,
-and training shrinks the object to match)."""
+they are (antialiased with Mip-Splatting's 0.1 px^2 filter: in classic mode a surface of small
+splats renders about a pixel fatter, and training shrinks the object to match)."""
 SPLAT_STEPS = DEFAULT_STEPS
 """Splats train the default schedule (densification, learning-rate decay, SH degrees), which
 ends within the time limit here; the first tenth of a 30,000-step one could stop just after an

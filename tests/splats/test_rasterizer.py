@@ -15,6 +15,7 @@ from pointfield.compiling import compiler_available
 from pointfield.splats.ply import read_splats
 from pointfield.splats.rasterizer import (
     MIN_ALPHA,
+    SCREEN_DILATION,
     SIGMA_EXTENT,
     project_gaussians,
     rasterization,
@@ -331,23 +332,39 @@ def test_rendering_a_model_whose_splat_count_changes_compiles_the_projection_onc
     assert graphs[-1] - graphs[0] <= 1
 
 
+@pytest.mark.parametrize("dilation", [SCREEN_DILATION, 0.1])
 @pytest.mark.parametrize("path", PATHS)
-def test_antialiased_images_match_the_reference(path):
+def test_antialiased_images_match_the_reference(path, dilation):
     splats = tiny_scene(30, 2)
     viewmats, Ks = cameras()
-    fast = render(path, splats, viewmats, Ks, 40, 35, antialiased=True)
-    slow = rasterization_reference(*splats, viewmats, Ks, 40, 35, antialiased=True)
+    mode = {"antialiased": True, "screen_dilation": dilation}
+    fast = render(path, splats, viewmats, Ks, 40, 35, **mode)
+    slow = rasterization_reference(*splats, viewmats, Ks, 40, 35, **mode)
     for name, a, b in zip(("colors", "depths", "alphas"), fast[:3], slow):
         torch.testing.assert_close(a, b, atol=1e-12, rtol=0, msg=name)
-    classic = render(path, splats, viewmats, Ks, 40, 35)
+    classic = render(path, splats, viewmats, Ks, 40, 35, screen_dilation=dilation)
     assert float(fast[2].detach().sum()) < float(classic[2].detach().sum()), "the compensation only lowers opacity"
 
 
-def test_antialiased_gradients_match_the_reference_and_stay_finite_edge_on():
+@pytest.mark.parametrize("path", PATHS)
+def test_a_smaller_screen_dilation_matches_the_reference_in_classic_mode(path):
+    splats = tiny_scene(30, 3)
+    viewmats, Ks = cameras()
+    fast = render(path, splats, viewmats, Ks, 40, 35, screen_dilation=0.1)
+    slow = rasterization_reference(*splats, viewmats, Ks, 40, 35, screen_dilation=0.1)
+    for name, a, b in zip(("colors", "depths", "alphas"), fast[:3], slow):
+        torch.testing.assert_close(a, b, atol=1e-12, rtol=0, msg=name)
+    default = render(path, splats, viewmats, Ks, 40, 35)
+    assert float((fast[2] - default[2]).detach().abs().max()) > 1e-3, "the dilation should change the image"
+
+
+@pytest.mark.parametrize("dilation", [SCREEN_DILATION, 0.1])
+def test_antialiased_gradients_match_the_reference_and_stay_finite_edge_on(dilation):
     splats = [tensor.requires_grad_() for tensor in tiny_scene(25, 4)]
     viewmats, Ks = cameras()
-    fast = rasterization(*splats, viewmats, Ks, 40, 35, antialiased=True)
-    slow = rasterization_reference(*splats, viewmats, Ks, 40, 35, antialiased=True)
+    mode = {"antialiased": True, "screen_dilation": dilation}
+    fast = rasterization(*splats, viewmats, Ks, 40, 35, **mode)
+    slow = rasterization_reference(*splats, viewmats, Ks, 40, 35, **mode)
     fast_grads = torch.autograd.grad(fast[0].sum() + fast[2].sum(), splats)
     slow_grads = torch.autograd.grad(slow[0].sum() + slow[2].sum(), splats)
     for name, a, b in zip(("means", "quats", "scales", "opacities", "colors"), fast_grads, slow_grads):
@@ -358,7 +375,7 @@ def test_antialiased_gradients_match_the_reference_and_stay_finite_edge_on():
     quats = torch.tensor([[0.5 ** 0.5, 0.5 ** 0.5, 0.0, 0.0]], dtype=torch.float64)  # disc normal along -y
     scales = torch.tensor([[0.3, 0.0, 0.3]], dtype=torch.float64, requires_grad=True)
     edge_on = rasterization(means, quats, scales, torch.tensor([0.9], dtype=torch.float64),
-                            torch.ones(1, 3, dtype=torch.float64), viewmats[:1], Ks[:1], 40, 35, antialiased=True)
+                            torch.ones(1, 3, dtype=torch.float64), viewmats[:1], Ks[:1], 40, 35, **mode)
     gradients = torch.autograd.grad(edge_on[2].sum(), (means, scales), allow_unused=True)
     assert all(g is None or bool(torch.isfinite(g).all()) for g in gradients)
 
@@ -367,6 +384,7 @@ def test_antialiased_mode_keeps_a_surface_of_small_splats_inside_its_outline():
     # A 20 x 21 pixel square at z = 4 tiled with 10,000 opaque discs a tenth of a pixel wide:
     # classic 3DGS draws each as a dilated blob about a pixel wide, so the square's outline
     # swells; antialiased, each disc's opacity shrinks with its dilation and the outline stays.
+    # A smaller dilation (Mip-Splatting's 0.1 px^2 against 3DGS's 0.3) swells classic less.
     dt = torch.float64
     side = torch.linspace(-1, 1, 100, dtype=dt)
     y, x = torch.meshgrid(side, side, indexing="ij")
@@ -378,8 +396,10 @@ def test_antialiased_mode_keeps_a_surface_of_small_splats_inside_its_outline():
     viewmats, Ks = cameras(1)
     square = 20 * 21  # pixels: 2 units at z = 4, focal lengths 40 and 42
     with torch.no_grad():
-        areas = {mode: float((rasterization(means, quats, scales, opacities, colors, viewmats, Ks, 40, 35,
-                                            antialiased=mode)[2] > 0.5).sum())
-                 for mode in (False, True)}
-    assert areas[False] > 1.15 * square, areas
-    assert areas[True] < 1.08 * square, areas
+        areas = {(mode, dilation): float((rasterization(means, quats, scales, opacities, colors, viewmats, Ks, 40, 35,
+                                                        antialiased=mode, screen_dilation=dilation)[2] > 0.5).sum())
+                 for mode in (False, True) for dilation in (SCREEN_DILATION, 0.1)}
+    assert areas[False, SCREEN_DILATION] > 1.15 * square, areas   # 527 pixels
+    assert areas[False, 0.1] < areas[False, SCREEN_DILATION] - 0.1 * square, areas   # 462
+    assert areas[True, SCREEN_DILATION] < 1.08 * square, areas   # 439
+    assert areas[True, 0.1] < 1.08 * square, areas   # 441

@@ -161,22 +161,30 @@ def test_commands_train_export_and_render(tiny_scene, tmp_path, capsys):
         assert not (tmp_path / "g.gif").exists()
 
 
-def test_an_antialiased_run_records_its_mode_and_renders_in_it(tiny_scene, tmp_path):
+def test_an_antialiased_run_records_its_mode_and_dilation_and_renders_in_them(tiny_scene, tmp_path, capsys):
     import pointfield
-    from pointfield.splats.run import camera_matrices
+    from pointfield.splats.run import camera_matrices, rasterizer_mode
 
     assert main(["splat", "train", str(tiny_scene), "--out", str(tmp_path / "run"), "--steps", "4",
-                 "--initial-splats", "200", "--antialiased", "--no-progress"]) == 0
+                 "--initial-splats", "200", "--antialiased", "--screen-dilation", "0.1", "--no-progress"]) == 0
     run = pointfield.load_run(tmp_path / "run")
-    assert run.config["antialiased"] is True
+    assert run.config["antialiased"] is True and run.config["screen_dilation"] == 0.1
     opacity = run.render(run.scene.cameras[[0]], outputs=("opacity",))[0]["opacity"]
     g = run.gaussians
     viewmats, Ks = camera_matrices(run.scene.cameras[[0]], run.device)
-    rendered = {mode: rasterization(g.means, g.quats, g.scales, g.opacities, g.sh_coefficients, viewmats, Ks, 24, 24,
-                                    sh_degree=g.active_sh_degree, antialiased=mode)[2][0].detach()
-                for mode in (False, True)}
-    torch.testing.assert_close(opacity, rendered[True].clamp(0, 1))
-    assert float((rendered[False] - rendered[True]).abs().max()) > 1e-3, "the two modes should differ here"
+    rendered = {(mode, dilation): rasterization(g.means, g.quats, g.scales, g.opacities, g.sh_coefficients, viewmats,
+                                                Ks, 24, 24, sh_degree=g.active_sh_degree, antialiased=mode,
+                                                screen_dilation=dilation)[2][0].detach()
+                for mode, dilation in ((False, 0.3), (True, 0.3), (True, 0.1))}
+    torch.testing.assert_close(opacity, rendered[True, 0.1].clamp(0, 1))
+    for other in ((False, 0.3), (True, 0.3)):
+        assert float((rendered[other] - rendered[True, 0.1]).abs().max()) > 1e-3, f"{other} should differ here"
+    # A run made before the settings existed was classic, with 3DGS's 0.3 px^2.
+    assert rasterizer_mode({"task": "splat"}) == {"antialiased": False, "screen_dilation": 0.3}
+    assert main(["splat", "train", str(tiny_scene), "--out", str(tmp_path / "bad"), "--steps", "4",
+                 "--screen-dilation", "0", "--no-progress"]) == 1
+    assert "--screen-dilation must be a positive number of px^2, got 0.0" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
 
 
 def test_a_colmap_scene_initialises_from_its_sparse_points(shared_data):

@@ -58,6 +58,7 @@ def rasterization_gsplat(
     near_plane: float = 0.01,
     far_plane: float = 1e10,
     antialiased: bool = False,
+    screen_dilation: float = SCREEN_DILATION,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
     """:func:`pointfield.splats.rasterizer.rasterization` computed by ``gsplat.rasterization``.
 
@@ -70,7 +71,7 @@ def rasterization_gsplat(
 
     rendered, alphas, meta = gsplat.rasterization(
         means, quats, scales, opacities, colors, viewmats, Ks, width, height,
-        near_plane=near_plane, far_plane=far_plane, eps2d=SCREEN_DILATION, sh_degree=sh_degree,
+        near_plane=near_plane, far_plane=far_plane, eps2d=screen_dilation, sh_degree=sh_degree,
         packed=False, render_mode="RGB+D", rasterize_mode="antialiased" if antialiased else "classic",
     )
     image, depth, alpha = rendered[..., :-1], rendered[..., -1], alphas[..., 0]

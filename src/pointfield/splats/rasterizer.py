@@ -22,8 +22,8 @@ The algorithm, step by step:
    ``W Sigma W^T`` is mapped to the image by the Jacobian of the perspective projection at the
    mean, ``J = [[fx/z, 0, -fx x/z^2], [0, fy/z, -fy y/z^2]]``, giving
    ``Sigma_2d = J W Sigma W^T J^T + 0.3 I`` (computed as ``M M^T`` with ``M = J W R S``, since
-   ``Sigma = R S S^T R^T``). The 0.3 px^2 dilation keeps every splat at least about a pixel
-   wide (no aliasing holes). As in 3DGS, ``x/z`` and ``y/z`` are clamped to 1.3x the field of
+   ``Sigma = R S S^T R^T``). The 0.3 px^2 dilation (``screen_dilation``) keeps every splat at
+   least about a pixel wide (no aliasing holes). As in 3DGS, ``x/z`` and ``y/z`` are clamped to 1.3x the field of
    view inside ``J`` so splats far outside the view do not explode. Splats with
    ``z <= near_plane`` are dropped; ``meta["radii"]`` is the 3-sigma half-width
    ``ceil(3 sqrt(lambda_max(Sigma_2d)))``, 0 for splats off screen.
@@ -80,6 +80,10 @@ from pointfield.fields.rendering import MEDIAN_OPACITY
 from pointfield.splats.gaussians import quaternion_to_rotation
 
 TILE_SIZE = 4
+# The variance (px^2) added to every splat's screen covariance, so that none is thinner than
+# a pixel: 3DGS's and gsplat's ``eps2d``. Mip-Splatting's 2D filter uses 0.1 (with the
+# antialiased mode's opacity factor), which draws a surface of small splats closer to its
+# true outline; the ``screen_dilation`` argument chooses it.
 SCREEN_DILATION = 0.3
 MIN_ALPHA = 1.0 / 255.0
 MAX_ALPHA = 0.99
@@ -110,7 +114,8 @@ class Projection:
     ``means2d`` ``(N, 2)`` pixel coordinates, ``conics`` ``(N, 3)`` the upper triangle
     ``(a, b, c)`` of ``Sigma_2d^-1``, ``depths`` ``(N,)`` camera z, ``radii`` ``(N,)`` the 3-sigma
     half-width in pixels (0 where not visible), ``visible`` ``(N,)`` bool, ``compensations``
-    ``(N,)`` the antialiased mode's opacity factor ``sqrt(det(Sigma_2d - 0.3 I) / det(Sigma_2d))``.
+    ``(N,)`` the antialiased mode's opacity factor ``sqrt(det(Sigma_2d - s I) / det(Sigma_2d))``, ``s`` the
+    screen dilation.
     """
 
     means2d: torch.Tensor
@@ -131,10 +136,11 @@ def project_gaussians(
     height: int,
     near_plane: float = 0.01,
     far_plane: float = 1e10,
+    screen_dilation: float = SCREEN_DILATION,
 ) -> Projection:
     """Project N Gaussians into one camera (``viewmat`` (4, 4) world-to-camera, ``K`` (3, 3)).
 
-    See the module docstring, steps 1 and 2, for the formulas.
+    See the module docstring, steps 1 and 2, for the formulas (``screen_dilation`` is step 1's 0.3).
     """
     rotation, translation = viewmat[:3, :3], viewmat[:3, 3]
     means_cam = means @ rotation.T + translation
@@ -160,7 +166,7 @@ def project_gaussians(
     row_x = (fx / z_safe)[:, None] * axes[:, 0] - (fx * tx / z_safe**2)[:, None] * axes[:, 2]
     row_y = (fy / z_safe)[:, None] * axes[:, 1] - (fy * ty / z_safe**2)[:, None] * axes[:, 2]
     a_undilated, b, c_undilated = (row_x * row_x).sum(-1), (row_x * row_y).sum(-1), (row_y * row_y).sum(-1)
-    a, c = a_undilated + SCREEN_DILATION, c_undilated + SCREEN_DILATION
+    a, c = a_undilated + screen_dilation, c_undilated + screen_dilation
     determinant = a * c - b * b
     positive = determinant > 0
     determinant_safe = torch.where(positive, determinant, torch.ones_like(determinant))
@@ -204,6 +210,7 @@ def rasterization(
     backend: str = "auto",
     median_depth: bool = False,
     antialiased: bool = False,
+    screen_dilation: float = SCREEN_DILATION,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
     """Render N Gaussians into C cameras; differentiable with respect to every tensor input.
 
@@ -224,10 +231,12 @@ def rasterization(
     - ``median_depth``: also render the median depth (step 5), into ``meta["median_depths"]``
       (no gradient; off by default, so that training does not pay for it);
     - ``antialiased``: gsplat's "antialiased" mode (Mip-Splatting's 2D filter): each opacity is
-      scaled by ``sqrt(det(Sigma_2d - 0.3 I) / det(Sigma_2d))``, so that the dilation of step 1
+      scaled by ``sqrt(det(Sigma_2d - s I) / det(Sigma_2d))``, so that the dilation of step 1
       spreads a splat's coverage instead of adding to it. Without it a splat much smaller than
       a pixel still covers one, and a surface of such splats renders fatter than it is by about
-      a pixel at its outline.
+      a pixel at its outline;
+    - ``screen_dilation``: ``s``, the variance in px^2 that step 1 adds to every ``Sigma_2d``
+      (default :data:`SCREEN_DILATION`, 0.3 as 3DGS; Mip-Splatting's 2D filter uses 0.1).
 
     Where no gradient can flow (under ``torch.no_grad()``, or when no input requires one), the
     compositing takes its in-place path, :func:`composite_tiles_no_grad`: the same images, to
@@ -267,7 +276,7 @@ def rasterization(
         means, quats, scales = means.detach(), quats.detach(), scales.detach()
     projections = [
         _FUSED_PROJECT(fused, means.device, means, quats, scales, viewmats[i], Ks[i], width, height,
-                       near_plane, far_plane)
+                       near_plane, far_plane, screen_dilation)
         for i in range(camera_count)
     ]
     # One (C, N, 2) tensor that the compositing reads from, so its .grad is the screen-space

@@ -40,6 +40,7 @@ def rasterization_reference(
     near_plane: float = 0.01,
     far_plane: float = 1e10,
     antialiased: bool = False,
+    screen_dilation: float = SCREEN_DILATION,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Render like :func:`~pointfield.splats.rasterizer.rasterization`: ``(colors, depths, alphas)``."""
     images, depth_images, alpha_images = [], [], []
@@ -59,7 +60,7 @@ def rasterization_reference(
             x, y, z = rotation_cam @ means[i] + translation
             if not near_plane < float(z.detach()) < far_plane:
                 continue
-            # EWA: Sigma_2d = J W Sigma W^T J^T + 0.3 I, J at the (field-of-view clamped) mean.
+            # EWA: Sigma_2d = J W Sigma W^T J^T + s I (s the screen dilation), J at the (field-of-view clamped) mean.
             limit_x = (-(cx / fx) - 0.3 * 0.5 * width / fx, (width - cx) / fx + 0.3 * 0.5 * width / fx)
             limit_y = (-(cy / fy) - 0.3 * 0.5 * height / fy, (height - cy) / fy + 0.3 * 0.5 * height / fy)
             tx = z * torch.clamp(x / z, min=limit_x[0], max=limit_x[1])
@@ -71,7 +72,7 @@ def rasterization_reference(
             rotation = quaternion_to_rotation(quats[i][None])[0]
             sigma_world = rotation @ torch.diag(scales[i] ** 2) @ rotation.T
             sigma_2d = jacobian @ rotation_cam @ sigma_world @ rotation_cam.T @ jacobian.T
-            dilated = sigma_2d + SCREEN_DILATION * torch.eye(2, dtype=means.dtype)
+            dilated = sigma_2d + screen_dilation * torch.eye(2, dtype=means.dtype)
             if float(torch.linalg.det(dilated.detach())) <= 0:
                 continue
             # Antialiased: the opacity scaled so the dilation spreads the splat's coverage.

@@ -29,13 +29,24 @@ from pointfield.scenes.run import SceneRun, render_path
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
 from pointfield.splats.gsplat_rasterizer import choose_rasterizer, rasterization_gsplat
 from pointfield.splats.ply import read_splats, write_splats
-from pointfield.splats.rasterizer import rasterization
+from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization
 from pointfield.training.checkpoints import load_checkpoint
 from pointfield.training.lifecycle import open_run
 from pointfield.training.run import RunDirectory
 from pointfield.viz.views import PANELS
 
 TASK = "splat"
+
+
+def rasterizer_mode(config: dict[str, Any]) -> dict[str, Any]:
+    """How a run's splats were trained to be drawn, from its ``config``: ``antialiased`` and
+    ``screen_dilation``, the keyword arguments of :func:`render_views` and :func:`render_camera`.
+
+    Runs made before a setting existed were trained with its old behaviour: classic mode, and
+    :data:`~pointfield.splats.rasterizer.SCREEN_DILATION`.
+    """
+    return {"antialiased": bool(config.get("antialiased", False)),
+            "screen_dilation": float(config.get("screen_dilation", SCREEN_DILATION))}
 
 
 def camera_matrices(cameras: Cameras, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
@@ -51,7 +62,7 @@ def camera_matrices(cameras: Cameras, device: torch.device) -> tuple[torch.Tenso
 def render_views(
     gaussians: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int,
     background: torch.Tensor, sh_degree: int | None = None, rasterizer: str = "pointfield",
-    median_depth: bool = False, antialiased: bool = False,
+    median_depth: bool = False, antialiased: bool = False, screen_dilation: float = SCREEN_DILATION,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
     """Render ``gaussians`` into cameras: ``(colors (C, H, W, 3), depths, alphas, meta)``.
 
@@ -59,12 +70,13 @@ def render_views(
     or "auto" (:mod:`pointfield.splats.gsplat_rasterizer`). ``median_depth``: also
     ``meta["median_depths"]`` ``(C, H, W)`` (camera z, as the rasterizer gives it); gsplat
     renders none, so with gsplat pointfield's rasterizer renders it, in a second pass.
-    ``antialiased``: the rasterizers' antialiased mode (for splats trained in it).
+    ``antialiased``, ``screen_dilation``: the rasterizers' mode and dilation (:func:`rasterizer_mode`:
+    the ones the splats were trained with).
     """
     chosen = choose_rasterizer(rasterizer, gaussians.means.device)
     splats = (gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities, gaussians.sh_coefficients)
     options = {"sh_degree": gaussians.active_sh_degree if sh_degree is None else sh_degree, "backgrounds": background,
-               "antialiased": antialiased}
+               "antialiased": antialiased, "screen_dilation": screen_dilation}
     if chosen == "pointfield":
         return rasterization(*splats, viewmats, Ks, width, height, **options, median_depth=median_depth)
     colors, depths, alphas, meta = rasterization_gsplat(*splats, viewmats, Ks, width, height, **options)
@@ -77,7 +89,7 @@ def render_views(
 @torch.no_grad()
 def render_camera(
     gaussians: Gaussians, cameras: Cameras, index: int, background: torch.Tensor, rasterizer: str = "pointfield",
-    outputs: Sequence[str] = OUTPUTS, antialiased: bool = False,
+    outputs: Sequence[str] = OUTPUTS, antialiased: bool = False, screen_dilation: float = SCREEN_DILATION,
 ) -> View:
     """Camera ``index`` rendered: ``rgb`` ``(H, W, 3)``, expected ``depth`` and ``opacity`` ``(H, W)``,
     and ``median_depth`` ``(H, W)`` where ``outputs`` asks for it.
@@ -91,7 +103,8 @@ def render_camera(
     width, height = int(cameras.width[index]), int(cameras.height[index])
     median = "median_depth" in outputs
     colors, depths, alphas, meta = render_views(gaussians, viewmats, Ks, width, height, background,
-                                                rasterizer=rasterizer, median_depth=median, antialiased=antialiased)
+                                                rasterizer=rasterizer, median_depth=median, antialiased=antialiased,
+                                                screen_dilation=screen_dilation)
     axis_cosine = cameras.rays(index).axis_cosine.to(device, depths.dtype)
     view = {
         "rgb": colors[0].clamp(0, 1),
@@ -105,7 +118,7 @@ def render_camera(
 
 class SplatRun(SceneRun):
     """A trained splat run: its Gaussians (all SH degrees the run reached) render any camera,
-    in the rasterizer mode they were trained in (``config["antialiased"]``; classic before it)."""
+    in the rasterizer mode they were trained in (:func:`rasterizer_mode`)."""
 
     tasks = (TASK,)
 
@@ -136,7 +149,7 @@ class SplatRun(SceneRun):
 
     def render_one(self, cameras: Cameras, index: int, outputs: Sequence[str] = OUTPUTS) -> View:
         return render_camera(self.gaussians, cameras, index, self.background, self.rasterizer, outputs,
-                             antialiased=bool(self.config.get("antialiased", False)))
+                             **rasterizer_mode(self.config))
 
 
 def export(run: str | os.PathLike[str], out: str | os.PathLike[str]) -> dict[str, Any]:

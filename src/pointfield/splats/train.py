@@ -26,8 +26,9 @@ better geometry from depth, at a cost in PSNR (:mod:`pointfield.splats.loss`). A
 (:func:`~pointfield.splats.rasterizer.rasterization`), where a surface of splats smaller than a
 pixel is drawn much closer to its true outline: in classic mode the true cube's surface, tiled with
 small flat splats, renders 11.7 % more outline pixels than the cube (3.3 % antialiased), and
-training shrinks the object about a pixel to match. The run records the mode, and everything
-that renders the run uses it.
+training shrinks the object about a pixel to match. With Mip-Splatting's smaller filter
+(``screen_dilation=0.1`` px^2 instead of 3DGS's 0.3) it is drawn closer still. The run records
+both, and everything that renders the run uses them.
 :class:`~pointfield.splats.densification.DefaultStrategy` grows and prunes the splats from step 500 to half the run, never beyond ``max_splats``.
 
 :class:`SplatTask` is this recipe as the one training lifecycle (:mod:`pointfield.training`)
@@ -70,10 +71,11 @@ from pointfield.splats.loss import (
     opacity_entropy,
     splat_loss,
 )
-from pointfield.splats.rasterizer import rasterization
+from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization
 from pointfield.splats.run import (
     TASK,
     camera_matrices,
+    rasterizer_mode,
     render_camera,
     render_views,
 )
@@ -164,10 +166,14 @@ class SplatTask(Task):
             "opacity_entropy": settings.get("opacity_entropy"),
             "flatness": settings.get("flatness"),
             "antialiased": bool(settings.get("antialiased")),
+            "screen_dilation": float(SCREEN_DILATION if settings.get("screen_dilation") is None
+                                     else settings["screen_dilation"]),
             "depth_distortion": settings.get("depth_distortion"),
         }
         if min(config["steps"], config["max_splats"], config["initial_splats"], config["eval_every"]) < 1:
             raise PointfieldError("--steps, --max-splats and --eval-every must be positive")
+        if not (math.isfinite(config["screen_dilation"]) and config["screen_dilation"] > 0):
+            raise PointfieldError(f"--screen-dilation must be a positive number of px^2, got {config['screen_dilation']}")
         if config["init"] not in INITS:
             raise PointfieldError(f"--init must be one of {', '.join(INITS)}, got {config['init']!r}")
         return config
@@ -207,7 +213,7 @@ class SplatTask(Task):
         # The geometry terms, where asked for (a run made before they existed has no such keys).
         self.opacity_entropy = float(config.get("opacity_entropy") or 0.0)
         self.flatness = float(config.get("flatness") or 0.0)
-        self.antialiased = bool(config.get("antialiased", False))  # classic in runs made before it
+        self.mode = rasterizer_mode(config)  # classic, 0.3 px^2 in runs made before the settings
         self.depth_distortion = float(config.get("depth_distortion") or 0.0)
         self.epochs = math.ceil(total / config["eval_every"])
         self.evaluated = self.heldout_frames[: max(1, config["eval_views"])]
@@ -219,10 +225,10 @@ class SplatTask(Task):
         # The rasterizer's compiled kernels are built on first use (seconds): here, before the clock.
         with torch.no_grad():
             render_views(self.model, self.viewmats[:1], self.Ks[:1], *self.sizes[0], self.background,
-                         antialiased=self.antialiased)
+                         **self.mode)
 
     def render(self, cameras) -> list[dict[str, torch.Tensor]]:
-        return [render_camera(self.model, cameras, index, self.background, antialiased=self.antialiased)
+        return [render_camera(self.model, cameras, index, self.background, **self.mode)
                 for index in range(len(cameras))]
 
     def _view_of_step(self, step: int) -> int:
@@ -252,7 +258,7 @@ class SplatTask(Task):
             rendered = colors[0, ..., :3]
         else:
             colors, _, alphas, meta = render_views(gaussians, self.viewmats[[view]], self.Ks[[view]],
-                                                   *self.sizes[view], self.background, antialiased=self.antialiased)
+                                                   *self.sizes[view], self.background, **self.mode)
             rendered = colors[0]
         meta["means2d"].retain_grad()
         self.last_meta, self.last_size = meta, self.sizes[view]
@@ -284,7 +290,7 @@ class SplatTask(Task):
         background = torch.cat([self.background, self.background.new_zeros(1)])
         return rasterization(gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities, features,
                              self.viewmats[[view]], self.Ks[[view]], *self.sizes[view], backgrounds=background,
-                             antialiased=self.antialiased)
+                             **self.mode)
 
     def evaluate(self, epoch: int) -> dict[str, float]:
         scores, _ = heldout_scores(self.render, self.scene, self.evaluated)
@@ -315,6 +321,7 @@ def train(
     opacity_entropy: float | None = None,
     flatness: float | None = None,
     antialiased: bool = False,
+    screen_dilation: float | None = None,
     depth_distortion: float | None = None,
     device: str | None = None,
     seed: int = 0,
@@ -337,14 +344,17 @@ def train(
     and the images' alpha, added to the loss where the images have alpha (default 0.1; 0 turns
     it off). ``opacity_entropy``, ``flatness`` and ``depth_distortion``: weights of the
     geometry terms of :mod:`pointfield.splats.loss` (default off; ``GEOMETRY_WEIGHTS`` there are
-    the ones measured). ``antialiased``: train (and render) in the rasterizer's antialiased mode.
+    the ones measured). ``antialiased``: train (and render) in the rasterizer's antialiased mode;
+    ``screen_dilation``: the variance in px^2 added to every splat's screen footprint (default
+    0.3, :data:`~pointfield.splats.rasterizer.SCREEN_DILATION`; Mip-Splatting's filter is 0.1).
     Resuming, only ``steps`` and ``max_splats`` may change. Returns the final metrics
     (also in ``out/metrics.json``).
     """
     settings = {
         "scene": scene, "steps": steps, "downscale": downscale, "holdout_every": holdout_every,
         "background": background, "alpha_loss": alpha_loss, "opacity_entropy": opacity_entropy,
-        "flatness": flatness, "antialiased": antialiased, "depth_distortion": depth_distortion, "seed": seed,
+        "flatness": flatness, "antialiased": antialiased,
+        "screen_dilation": screen_dilation, "depth_distortion": depth_distortion, "seed": seed,
         "max_splats": max_splats, "initial_splats": initial_splats, "init": init,
         "eval_every": eval_every, "eval_views": eval_views, "cube_views": cube_views, "cube_size": cube_size,
     }
