@@ -47,7 +47,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                             "(default 0.1; 0: off)")
     train.add_argument("--opacity-entropy", type=float, default=None, metavar="WEIGHT",
                        help="weight of the splats' mean opacity entropy in the loss: splats opaque or gone, "
-                            "for geometry export (default off; 0.01 measured, see docs/geometry.md)")
+                            "for geometry export (default off; 0.1 measured, see docs/geometry.md)")
     train.add_argument("--flatness", type=float, default=None, metavar="WEIGHT",
                        help="weight of the splats' mean smallest scale in the loss: discs along surfaces, "
                             "for geometry export (default off; 1 measured)")

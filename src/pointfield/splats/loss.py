@@ -17,7 +17,7 @@ import torch
 from pointfield.metrics import ssim
 
 SSIM_WEIGHT = 0.2
-GEOMETRY_WEIGHTS = {"opacity_entropy": 0.01, "flatness": 1.0, "depth_distortion": 100.0}
+GEOMETRY_WEIGHTS = {"opacity_entropy": 0.1, "flatness": 1.0, "depth_distortion": 100.0}
 
 
 def splat_loss(prediction: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
