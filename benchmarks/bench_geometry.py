@@ -23,9 +23,10 @@ random backgrounds (the default, with its distortion loss), the same without the
 loss, with the fixed white background, and with the alpha loss instead;
 splats with the geometry recipe (``SPLAT_GEOMETRY``: the geometry terms of
 :mod:`pointfield.splats.loss` and the rasterizer's antialiased mode with Mip-Splatting's 0.1 px^2
-dilation, which the cube's splats are trained with), with the alpha loss alone (the default), and with colour only; each trained for
-at most ``--lego-time`` seconds (the splats as above), held-out PSNR and opacity error side by
-side (opacity training must not cost PSNR); then the mesh of the first
+dilation, which the cube's splats are trained with), with the alpha loss alone (the default),
+and with colour only; each trained for at most ``--lego-time`` seconds (the splats as above),
+held-out PSNR and opacity error side by side (opacity training must not cost PSNR); then the
+mesh of the first
 exported at 256^3, timed end to end (open the run, render the 90 training views, fuse, mesh,
 write) against the issue's 60 s.
 

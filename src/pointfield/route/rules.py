@@ -369,8 +369,8 @@ def _captured(given: Input, task: str | None) -> Plan:
             return Plan(MESH, "A game engine wants triangles: train the hash-grid field, then mesh its density "
                         "(marching cubes), decimated and coloured, written as GLB: for an object in a box this is "
                         "as close to the true surface as fused depth (0.33 % against 0.34 % of the diagonal, "
-                        "Chamfer, on the geometry benchmark's textured cube) and renders no views (6 s against "
-                        "32 s)",
+                        "Chamfer, on the geometry benchmark's textured cube) and renders no views (7 s against "
+                        "31 s)",
                         [*steps, ngp, _pf(*mesh, "--method", "density")], notes=notes)
         return Plan(MESH, "A game engine wants triangles: train the hash-grid field, then fuse its rendered depth "
                     "into a decimated, coloured mesh (TSDF, marching cubes) written as GLB",

@@ -23,8 +23,8 @@ The algorithm, step by step:
    mean, ``J = [[fx/z, 0, -fx x/z^2], [0, fy/z, -fy y/z^2]]``, giving
    ``Sigma_2d = J W Sigma W^T J^T + 0.3 I`` (computed as ``M M^T`` with ``M = J W R S``, since
    ``Sigma = R S S^T R^T``). The 0.3 px^2 dilation (``screen_dilation``) keeps every splat at
-   least about a pixel wide (no aliasing holes). As in 3DGS, ``x/z`` and ``y/z`` are clamped to 1.3x the field of
-   view inside ``J`` so splats far outside the view do not explode. Splats with
+   least about a pixel wide (no aliasing holes). As in 3DGS, ``x/z`` and ``y/z`` are clamped
+   to 1.3x the field of view inside ``J`` so splats far outside the view do not explode. Splats with
    ``z <= near_plane`` are dropped; ``meta["radii"]`` is the 3-sigma half-width
    ``ceil(3 sqrt(lambda_max(Sigma_2d)))``, 0 for splats off screen.
 2. **Bound** what each splat can reach. With ``sigma = 0.5 d^T Sigma_2d^-1 d`` at offset ``d``

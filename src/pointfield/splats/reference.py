@@ -60,7 +60,8 @@ def rasterization_reference(
             x, y, z = rotation_cam @ means[i] + translation
             if not near_plane < float(z.detach()) < far_plane:
                 continue
-            # EWA: Sigma_2d = J W Sigma W^T J^T + s I (s the screen dilation), J at the (field-of-view clamped) mean.
+            # EWA: Sigma_2d = J W Sigma W^T J^T + s I (s: the screen dilation), J at the
+            # (field-of-view clamped) mean.
             limit_x = (-(cx / fx) - 0.3 * 0.5 * width / fx, (width - cx) / fx + 0.3 * 0.5 * width / fx)
             limit_y = (-(cy / fy) - 0.3 * 0.5 * height / fy, (height - cy) / fy + 0.3 * 0.5 * height / fy)
             tx = z * torch.clamp(x / z, min=limit_x[0], max=limit_x[1])

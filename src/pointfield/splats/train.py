@@ -27,8 +27,9 @@ better geometry from depth, at a cost in PSNR (:mod:`pointfield.splats.loss`). A
 pixel is drawn much closer to its true outline: in classic mode the true cube's surface, tiled with
 small flat splats, renders 11.7 % more outline pixels than the cube (3.3 % antialiased), and
 training shrinks the object about a pixel to match. With Mip-Splatting's smaller filter
-(``screen_dilation=0.1`` px^2 instead of 3DGS's 0.3) it is drawn closer still. The run records
-both, and everything that renders the run uses them.
+(``screen_dilation=0.1`` px^2 instead of 3DGS's 0.3) it is drawn closer still (tiled with discs
+of 0.01: 3.8 % over its outline, against 6.2 % at 0.3). The run records both, and everything
+that renders the run uses them.
 :class:`~pointfield.splats.densification.DefaultStrategy` grows and prunes the splats from step 500 to half the run, never beyond ``max_splats``.
 
 :class:`SplatTask` is this recipe as the one training lifecycle (:mod:`pointfield.training`)
