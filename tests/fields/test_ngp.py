@@ -79,6 +79,15 @@ def test_the_ray_budget_adapts_so_that_a_step_processes_about_the_target_samples
     assert all(0.7 * 4096 < count < 1.4 * 4096 for count in samples[-3:]), samples
 
 
+def test_the_ray_budget_draws_more_than_16384_rays_only_for_a_target_that_can_use_them():
+    # Once empty space is skipped a lego ray costs about 5 samples: 2^18 samples want ~52,000 rays.
+    for target, cap in ((1 << 12, 1 << 14), (1 << 16, 1 << 14), (1 << 18, 1 << 16)):
+        budget = RayBudget(target)
+        for _ in range(20):  # a hundredth of a sample a ray: asks for a hundred times the rays
+            budget.update(budget.rays(), budget.rays() * 0.01)
+        assert budget.rays() == cap, (target, budget.rays())
+
+
 def test_unbounded_interlevel_loss_trains_the_proposal_networks_only(rays_at_the_box):
     torch.manual_seed(0)
     model = InstantNGP(UNIT_BOX, unbounded=True, levels=4, log2_table_size=12, max_resolution=64,

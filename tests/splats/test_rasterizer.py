@@ -295,7 +295,8 @@ def test_both_paths_render_the_real_3dgs_file_alike_in_float32(shared_data):
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
-def test_cuda_renders_and_differentiates_like_the_cpu():
+@pytest.mark.parametrize(("antialiased", "dilation"), [(False, SCREEN_DILATION), (True, 0.1)])
+def test_cuda_renders_and_differentiates_like_the_cpu(antialiased, dilation):
     splats = [tensor.float() for tensor in tiny_scene(200, 21)]
     viewmats, Ks = (tensor.float() for tensor in cameras())
     results = {}
@@ -303,7 +304,8 @@ def test_cuda_renders_and_differentiates_like_the_cpu():
         # a copy per device: on the CPU .to() returns the tensor itself, whose requires_grad
         # would make the CUDA copies non-leaf tensors, without .grad
         inputs = [tensor.detach().clone().to(device).requires_grad_() for tensor in splats]
-        colors, depths, alphas, _ = rasterization(*inputs, viewmats.to(device), Ks.to(device), 40, 35)
+        colors, depths, alphas, _ = rasterization(*inputs, viewmats.to(device), Ks.to(device), 40, 35,
+                                                  antialiased=antialiased, screen_dilation=dilation)
         (colors.sum() + alphas.sum()).backward()
         results[device] = [colors.detach().cpu(), depths.detach().cpu(), alphas.detach().cpu(),
                            *(tensor.grad.cpu() for tensor in inputs)]
