@@ -19,7 +19,7 @@ density at instant-ngp's level (``method="density"``). Beside them, same run:
   wheel here: see ``bench_tsdf.py``).
 
 Then, unless ``--lego-time 0``, NeRF-synthetic lego at 100 x 100: the hash-grid field with
-its default opacity training (random backgrounds for the first 1,000 steps, then the fixed
+its default opacity training (random backgrounds for the first 500 steps, then the fixed
 background with the alpha loss; with its distortion loss), the same without the distortion
 loss, with random backgrounds throughout (the default before), and with the fixed white
 background alone;

@@ -54,7 +54,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                             "alpha (default: on where the images have alpha)")
     train.add_argument("--random-background-steps", type=int, default=None, metavar="N",
                        help="random backgrounds for the first N steps only, then the scene's background with "
-                            "the alpha loss (default 1000; a number past --steps keeps them throughout)")
+                            "the alpha loss (default 500; a number past --steps keeps them throughout)")
     train.add_argument("--alpha-loss", type=float, default=None, metavar="WEIGHT",
                        help="add WEIGHT x |rendered opacity - alpha| to the loss where the images have alpha "
                             "(default: off while the backgrounds are random, 0.1 after them)")

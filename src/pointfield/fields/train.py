@@ -82,12 +82,13 @@ DEFAULT_STEPS = {"tiny": 2000, "nerf": 5000, "ngp": 3000}
 LEARNING_RATES = {"tiny": 5e-4, "nerf": 5e-4, "ngp": 1e-2}
 """Adam's default learning rate per model (the hash grid's, as in Instant-NGP, is much larger)."""
 FINAL_LEARNING_RATE_FRACTION = 0.1
-RANDOM_BACKGROUND_STEPS = 1000
+RANDOM_BACKGROUND_STEPS = 500
 """Steps trained on random backgrounds (where the images have alpha) before the scene's background
 and the alpha loss take over. Random backgrounds give a young field its colour: on the demo's
 white-backed cube a fixed background from the start leaves it white (20.2 against 29.7 dB after
 300 steps). Kept on throughout, they cost lego about 0.4 dB held out against the fixed background
-at equal time, where the switch at 150 s (about 950 steps) cost 0.20 (docs/geometry.md)."""
+at equal time, where a switch half-way through 300 s cost 0.20 (docs/geometry.md). 500 steps are
+a quarter to two thirds of the 300 s lego benchmark on a 2-core machine, as its speed varies."""
 BOUNDED_NGP_DISTORTION = 0.01
 """The distortion loss's default weight for the fast field on a bounded scene (an object on a
 transparent background); 0 elsewhere (:func:`~pointfield.fields.rendering.distortion_loss`).
