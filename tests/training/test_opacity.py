@@ -73,54 +73,14 @@ def test_the_alpha_loss_learns_the_opacity_that_colour_cannot_show(white_cube, t
     """
     from pointfield.fields.train import train
 
-    variants = {
-        "colour only": {"random_background": False, "alpha_loss": 0.0},
-        "alpha loss": {"random_background": False, "alpha_loss": DEFAULT_ALPHA_LOSS},
-        # random backgrounds for no step: the default alpha loss of the phase after them from the start
-        "after the random backgrounds": {"random_background_steps": 0},
-    }
     errors = {}
-    for name, opacity_training in variants.items():
-        metrics = train(str(white_cube), model="ngp", out=tmp_path / name.replace(" ", "-"), steps=STEPS,
-                        eval_every=STEPS, device="cpu", model_options=SMALL_NGP, scene_box=[-1, -1, -1, 1, 1, 1],
-                        seed=0, progress=False, **opacity_training)
-        errors[name] = metrics["opacity_error"]
-    assert errors["alpha loss"] < 0.5 * errors["colour only"], errors
-    assert errors["after the random backgrounds"] < 0.5 * errors["colour only"], errors
-
-
-def test_random_backgrounds_last_their_steps_across_a_resume_and_the_run_records_them(white_cube, tmp_path,
-                                                                                      monkeypatch):
-    import json
-
-    import pointfield.fields.train as nerf_training
-
-    recomposited = []  # one call per step trained on random backgrounds
-
-    def spy(*args):
-        recomposited.append(1)
-        return recomposite(*args)
-
-    monkeypatch.setattr(nerf_training, "recomposite", spy)
-    common = {"model": "tiny", "out": tmp_path / "run", "eval_every": 3, "device": "cpu",
-              "model_options": {"samples": 8}, "seed": 0, "progress": False}
-    nerf_training.train(str(white_cube), steps=3, random_background_steps=4, **common)
-    assert len(recomposited) == 3
-    nerf_training.train(str(white_cube), steps=7, resume=True, **common)  # the recorded 4 holds
-    assert len(recomposited) == 4
-    assert json.loads((tmp_path / "run" / "config.json").read_text())["random_background_steps"] == 4
-    nerf_training.train(str(white_cube), steps=1, **{**common, "out": tmp_path / "default"})
-    assert json.loads((tmp_path / "default" / "config.json").read_text())["random_background_steps"] == (
-        nerf_training.RANDOM_BACKGROUND_STEPS)
-    # A run made before the setting (no key in its config) keeps random backgrounds throughout.
-    recomposited.clear()
-    old = {**common, "out": tmp_path / "old", "eval_every": 1}
-    nerf_training.train(str(white_cube), steps=1, random_background_steps=1, **old)
-    config = json.loads((tmp_path / "old" / "config.json").read_text())
-    del config["random_background_steps"]
-    (tmp_path / "old" / "config.json").write_text(json.dumps(config))
-    nerf_training.train(str(white_cube), steps=3, resume=True, **old)
-    assert len(recomposited) == 3
+    for weight in (0.0, DEFAULT_ALPHA_LOSS):
+        metrics = train(str(white_cube), model="ngp", out=tmp_path / str(weight), steps=STEPS, eval_every=STEPS,
+                        device="cpu", model_options=SMALL_NGP, scene_box=[-1, -1, -1, 1, 1, 1], alpha_loss=weight,
+                        random_background=False,
+                        seed=0, progress=False)
+        errors[weight] = metrics["opacity_error"]
+    assert errors[DEFAULT_ALPHA_LOSS] < 0.5 * errors[0.0], errors
 
 
 def test_the_alpha_loss_leaves_the_reported_training_psnr_that_of_the_colour(white_cube, tmp_path):

@@ -52,12 +52,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--random-background", action=argparse.BooleanOptionalAction, default=None,
                        help="train against a random colour behind each ray, so that opacity matches the images' "
                             "alpha (default: on where the images have alpha)")
-    train.add_argument("--random-background-steps", type=int, default=None, metavar="N",
-                       help="random backgrounds for the first N steps only, then the scene's background with "
-                            "the alpha loss (default 500; a number past --steps keeps them throughout)")
     train.add_argument("--alpha-loss", type=float, default=None, metavar="WEIGHT",
                        help="add WEIGHT x |rendered opacity - alpha| to the loss where the images have alpha "
-                            "(default: off while the backgrounds are random, 0.1 after them)")
+                            "(default 0: off)")
     train.add_argument("--distortion", type=float, default=None, metavar="WEIGHT",
                        help="weight of the distortion loss, which keeps each ray's density in one thin layer: "
                             "surfaces where they are, for meshes and clouds (default: 0.01 for ngp on a bounded scene, 0 otherwise)")
@@ -135,9 +132,7 @@ def run_train(args: argparse.Namespace) -> int:
         metrics = train(
             args.scene, model=args.model, out=args.out, steps=args.steps, max_time=args.max_time,
             batch_rays=args.batch_rays, downscale=args.downscale, holdout_every=args.holdout_every,
-            background=background, random_background=args.random_background,
-            **({} if args.random_background_steps is None else {"random_background_steps": args.random_background_steps}),
-            alpha_loss=args.alpha_loss, distortion=args.distortion, device=args.device, seed=args.seed, resume=args.resume,
+            background=background, random_background=args.random_background, alpha_loss=args.alpha_loss, distortion=args.distortion, device=args.device, seed=args.seed, resume=args.resume,
             eval_every=args.eval_every, learning_rate=args.learning_rate, progress=args.progress,
             scene_box=[float(v) for v in args.scene_box.split(",")] if "," in args.scene_box else args.scene_box,
         )

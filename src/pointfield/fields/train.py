@@ -13,9 +13,7 @@ The recipe: every pixel of the training views is a ray (``Cameras.rays``) with i
 each step renders ``batch_rays`` of them, drawn without replacement until all have been used
 (one *epoch*, a pass over all training rays, then reshuffled), and minimises the mean squared
 colour error of every render pass (NeRF: coarse and fine), plus on the fast field of an object
-the distortion loss (:data:`BOUNDED_NGP_DISTORTION`); where the images have alpha, against random
-backgrounds for the first :data:`RANDOM_BACKGROUND_STEPS` steps, then against the scene's with
-the alpha loss (:mod:`pointfield.training.opacity`); with Adam, learning rate decayed
+the distortion loss (:data:`BOUNDED_NGP_DISTORTION`), with Adam, learning rate decayed
 exponentially to a tenth over the run. Samples are jittered while training and at bin centres
 when evaluating. The hash-grid field (``ngp``) sizes its own batches instead: as many random
 rays as keep a step near its ``target_samples`` (:class:`~pointfield.fields.field.RayBudget`).
@@ -82,13 +80,6 @@ DEFAULT_STEPS = {"tiny": 2000, "nerf": 5000, "ngp": 3000}
 LEARNING_RATES = {"tiny": 5e-4, "nerf": 5e-4, "ngp": 1e-2}
 """Adam's default learning rate per model (the hash grid's, as in Instant-NGP, is much larger)."""
 FINAL_LEARNING_RATE_FRACTION = 0.1
-RANDOM_BACKGROUND_STEPS = 500
-"""Steps trained on random backgrounds (where the images have alpha) before the scene's background
-and the alpha loss take over. Random backgrounds give a young field its colour: on the demo's
-white-backed cube a fixed background from the start leaves it white (20.2 against 29.7 dB after
-300 steps). Kept on throughout, they cost lego about 0.4 dB held out against the fixed background
-at equal time, where a switch half-way through 300 s cost 0.20 (docs/geometry.md). 500 steps are
-a quarter to two thirds of the 300 s lego benchmark on a 2-core machine, as its speed varies."""
 BOUNDED_NGP_DISTORTION = 0.01
 """The distortion loss's default weight for the fast field on a bounded scene (an object on a
 transparent background); 0 elsewhere (:func:`~pointfield.fields.rendering.distortion_loss`).
@@ -138,7 +129,6 @@ class NerfTask(Task):
             "eval_every": settings["eval_every"],
             "eval_views": int(settings["eval_views"]),
             "random_background": settings.get("random_background"),
-            "random_background_steps": settings.get("random_background_steps"),
             "alpha_loss": settings.get("alpha_loss"),
             "distortion": None if settings.get("distortion") is None else float(settings["distortion"]),
         }
@@ -146,8 +136,6 @@ class NerfTask(Task):
             raise PointfieldError("--batch-rays, --steps and --eval-every must be positive")
         if config["distortion"] is not None and not config["distortion"] >= 0:
             raise PointfieldError(f"--distortion must be 0 or more, got {config['distortion']}")
-        if config["random_background_steps"] is not None and not config["random_background_steps"] >= 0:
-            raise PointfieldError(f"--random-background-steps must be 0 or more, got {config['random_background_steps']}")
         return config
 
     def __init__(self, config, device, distributed, progress, *,
@@ -170,19 +158,13 @@ class NerfTask(Task):
         self.model = self.trained = build_field(config, device)
         self.rays, self.colors = scene_rays(self.scene, self.train_frames, device)
         self.background = torch.as_tensor(self.scene.background, dtype=torch.float32, device=device)
-        # Opacity trained towards the images' alpha where they have it (training/opacity.py): random
-        # backgrounds for the first random_background_steps steps (None, as in runs made before
-        # the switch: throughout), then the scene's background with the alpha loss.
+        # Opacity trained towards the images' alpha where they have it (training/opacity.py).
+        self.alpha_loss = alpha_loss_weight(config.get("alpha_loss"), self.scene, self.train_frames, default=0.0)
         self.random_background = uses_random_background(config.get("random_background"), self.scene,
                                                         self.train_frames)
-        self.random_background_steps = config.get("random_background_steps") if self.random_background else 0
-        self.alpha_loss = alpha_loss_weight(config.get("alpha_loss"), self.scene, self.train_frames, default=0.0)
-        self.alpha_loss_after_switch = (
-            alpha_loss_weight(config.get("alpha_loss"), self.scene, self.train_frames)
-            if self.random_background and self.random_background_steps is not None else self.alpha_loss)
-        # 1 - alpha of every training ray; all are off (0 / False) where the images have no alpha.
+        # 1 - alpha of every training ray; both are off (0 / False) where the images have no alpha.
         self.transparency = (transparency_of(self.scene, self.train_frames).to(device)
-                             if self.alpha_loss or self.alpha_loss_after_switch or self.random_background else None)
+                             if self.alpha_loss or self.random_background else None)
         self.near, self.far = depth_bounds(self.scene)
         # A run made before the distortion loss existed was trained without it, and resumes so.
         self.distortion = float(config.get("distortion", 0.0))
@@ -235,19 +217,16 @@ class NerfTask(Task):
         self.model.before_step(int(step), generator)
         indices = self._rays_of_step(int(step), generator)
         background, target = self.background, self.colors[indices]
-        random_phase = self.random_background and (self.random_background_steps is None
-                                                   or int(step) < self.random_background_steps)
-        alpha_loss = self.alpha_loss if random_phase else self.alpha_loss_after_switch
-        if random_phase:
+        if self.random_background:
             # A random colour behind each ray: opacity must match alpha (training/opacity.py).
             background = torch.rand(len(indices), 3, generator=generator).to(self.device)
             target = recomposite(target, self.transparency[indices], self.background, background)
         output = self.model(self.rays[indices], background, jitter=True)
         losses = [torch.mean((rendered.color - target) ** 2) for rendered in output.passes]
         stats = {"psnr": psnr_from_mse(float(losses[-1].detach()))}  # of the final pass's colour
-        if alpha_loss:
+        if self.alpha_loss:
             alpha = 1 - self.transparency[indices]
-            losses.append(alpha_loss * (output.passes[-1].opacity - alpha).abs().mean())
+            losses.append(self.alpha_loss * (output.passes[-1].opacity - alpha).abs().mean())
         if self.distortion:
             # Each ray's weight drawn into one thin layer; distances in units of the scene's depth range.
             final = output.passes[-1]
@@ -297,7 +276,6 @@ def train(
     holdout_every: int | None = None,
     background: str | Sequence[float] | None = None,
     random_background: bool | None = None,
-    random_background_steps: int | None = RANDOM_BACKGROUND_STEPS,
     alpha_loss: float | None = None,
     distortion: float | None = None,
     device: str | None = None,
@@ -324,10 +302,8 @@ def train(
     pixels square is rendered and trained on. ``background`` ("white", "black" or an RGB
     triple) replaces the scene's: images' alpha is composited onto it and so is every render.
     Where the images have alpha, opacity is trained towards it (:mod:`pointfield.training.opacity`):
-    ``random_background`` draws a random colour behind each ray (None: on) for the first
-    ``random_background_steps`` steps (:data:`RANDOM_BACKGROUND_STEPS`; None: throughout), and
-    ``alpha_loss`` adds ``weight * mean |opacity - alpha|`` to the loss (None: off while the
-    backgrounds are random, :data:`~pointfield.training.opacity.DEFAULT_ALPHA_LOSS` after them). ``distortion``: the weight of
+    ``random_background`` draws a random colour behind each ray (None: on), and ``alpha_loss`` adds
+    ``weight * mean |opacity - alpha|`` to the loss (None: 0, off). ``distortion``: the weight of
     mip-NeRF 360's distortion loss on the final pass's weights, which draws each ray's weight into
     one thin layer (None: :data:`BOUNDED_NGP_DISTORTION` for ngp on a bounded scene, else 0).
     ``model_options`` go to the model's constructor (``samples`` for tiny,
@@ -341,8 +317,7 @@ def train(
     settings = {
         "scene": scene, "model": model, "model_options": model_options, "steps": steps,
         "batch_rays": batch_rays, "downscale": downscale, "holdout_every": holdout_every,
-        "background": background, "random_background": random_background,
-        "random_background_steps": random_background_steps, "alpha_loss": alpha_loss, "distortion": distortion, "seed": seed,
+        "background": background, "random_background": random_background, "alpha_loss": alpha_loss, "distortion": distortion, "seed": seed,
         "eval_every": eval_every, "eval_views": eval_views, "learning_rate": learning_rate, "scene_box": scene_box if isinstance(scene_box, str) else list(scene_box),
         "cube_views": cube_views, "cube_size": cube_size,
     }

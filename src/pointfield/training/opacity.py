@@ -5,20 +5,17 @@ is ``c = rgb a + B (1 - a)``. Trained only against ``c``, a model may render a s
 of ``B`` as transparent at no cost (white parts of an object on a white background come out
 half-transparent), and faint haze in empty space costs little. Two cures:
 
-- **random backgrounds** (as Instant-NGP does): a fresh random colour ``b`` behind each ray at
-  every step, with the target moved onto the same colour,
+- **random backgrounds** (fields, by default; as Instant-NGP does): a fresh random colour ``b``
+  behind each ray at every step, with the target moved onto the same colour,
 
       c' = c + (b - B)(1 - a) = rgb a + b (1 - a),
 
   so the render composited on ``b`` and the target agree only where the opacity is ``a``;
-- **the alpha loss** (weight :data:`DEFAULT_ALPHA_LOSS`): ``weight * mean |rendered opacity - a|``
-  over the step's rays or pixels added to the loss.
+- **the alpha loss** (splats, by default, weight :data:`DEFAULT_ALPHA_LOSS`; fields when asked):
+  ``weight * mean |rendered opacity - a|`` over the step's rays or pixels added to the loss.
 
-Splats train with the alpha loss. Fields train with random backgrounds while they are young (a
-fixed background leaves a young field the background's colour), then with the scene's
-background and the alpha loss, which costs their held-out PSNR less
-(:data:`pointfield.fields.train.RANDOM_BACKGROUND_STEPS`). The figures and the commands that
-measured them: docs/geometry.md, "Opacity, not only colour". Evaluation and
+Why random backgrounds for fields and the alpha loss for splats, with the figures and the
+commands that measured them: docs/geometry.md, "Opacity, not only colour". Evaluation and
 rendering keep the scene's background. Photos without alpha train on colour alone.
 """
 
