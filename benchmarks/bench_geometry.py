@@ -26,9 +26,8 @@ splats with the geometry recipe (``SPLAT_GEOMETRY``: the geometry terms of
 dilation, which the cube's splats are trained with), with the alpha loss alone (the default),
 and with colour only; each trained for at most ``--lego-time`` seconds (the splats as above),
 held-out PSNR and opacity error side by side (opacity training must not cost PSNR); then the
-mesh of the first
-exported at 256^3, timed end to end (open the run, render the 90 training views, fuse, mesh,
-write) against the issue's 60 s.
+mesh of the default ngp run exported at 256^3, timed end to end (open the run, render the 90
+training views, fuse, mesh, write) against the issue's 60 s.
 
 Pictures of every mesh and cloud go to ``--out``. Run: ``make bench-geometry`` (= ``python
 benchmarks/bench_geometry.py``); the record goes to ``benchmarks/records/geometry.json``.
