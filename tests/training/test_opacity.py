@@ -1,4 +1,4 @@
-"""Opacity trained towards the images' alpha: the recompositing identity, the defaults, and that it learns."""
+"""Opacity trained towards the images' alpha: random backgrounds in expectation, the defaults, and that it learns."""
 
 from __future__ import annotations
 
@@ -8,8 +8,11 @@ import torch
 
 from pointfield.scenes import synthetic_scene
 from pointfield.training.opacity import (
+    BACKGROUND_MEAN,
+    BACKGROUND_VARIANCE,
     DEFAULT_ALPHA_LOSS,
     alpha_loss_weight,
+    random_background_loss,
     recomposite,
     transparency_of,
     uses_random_background,
@@ -28,6 +31,29 @@ def test_recomposite_moves_the_target_onto_the_new_background():
     on_white = rgb * alpha[:, None] + white * (1 - alpha[:, None])
     moved = recomposite(on_white, 1 - alpha, white, random)
     torch.testing.assert_close(moved, rgb * alpha[:, None] + random * (1 - alpha[:, None]))
+
+
+def test_the_random_background_loss_is_the_mean_over_drawn_backgrounds():
+    """Colour error over grey plus the loss = the error averaged over many uniform random backgrounds,
+    each composited behind both the render and the image, as Instant-NGP draws them."""
+    generator = torch.Generator().manual_seed(0)
+    rays = 64
+    rgb, alpha = torch.rand(rays, 3, generator=generator), torch.rand(rays, generator=generator)
+    rendered_rgb, opacity = torch.rand(rays, 3, generator=generator), torch.rand(rays, generator=generator)
+
+    def over(colour, coverage, background):
+        return colour * coverage[..., None] + background * (1 - coverage[..., None])
+
+    backgrounds = torch.rand(200_000, 1, 3, generator=generator, dtype=torch.float64)
+    sampled = torch.mean((over(rendered_rgb.double(), opacity.double(), backgrounds)
+                          - over(rgb.double(), alpha.double(), backgrounds)) ** 2)
+    grey = torch.full((3,), BACKGROUND_MEAN)
+    expected = (torch.mean((over(rendered_rgb, opacity, grey) - over(rgb, alpha, grey)) ** 2)
+                + random_background_loss(opacity, alpha))
+    assert (BACKGROUND_MEAN, BACKGROUND_VARIANCE) == pytest.approx((1 / 2, 1 / 12))
+    assert float(expected) == pytest.approx(float(sampled), rel=2e-3)
+    # Opacity is pinned: a transparent render of an opaque pixel costs, whatever its colour.
+    assert float(random_background_loss(torch.zeros(rays), torch.ones(rays))) == pytest.approx(1 / 12)
 
 
 def test_the_alpha_loss_applies_only_where_the_images_have_alpha():
@@ -65,22 +91,25 @@ def white_cube(tmp_path_factory):
     return data
 
 
-def test_the_alpha_loss_learns_the_opacity_that_colour_cannot_show(white_cube, tmp_path):
-    """A white cube on white: the colour loss is blind to opacity, the alpha loss finds the cube (no random backgrounds).
+@pytest.mark.parametrize("cure", ["alpha loss", "random backgrounds"])
+def test_opacity_training_learns_the_opacity_that_colour_cannot_show(white_cube, tmp_path, cure):
+    """A white cube on white: the colour loss is blind to opacity; the alpha loss or random backgrounds find the cube.
 
     The hash-grid field starts thick (opaque everywhere in its box); colour alone leaves it so.
     Splats are checked on lego by ``make bench-geometry`` (opacity error 0.006 against 0.34).
     """
     from pointfield.fields.train import train
 
+    settings = {"colour only": {"alpha_loss": 0.0, "random_background": False},
+                "alpha loss": {"alpha_loss": DEFAULT_ALPHA_LOSS, "random_background": False},
+                "random backgrounds": {"alpha_loss": 0.0, "random_background": True}}
     errors = {}
-    for weight in (0.0, DEFAULT_ALPHA_LOSS):
-        metrics = train(str(white_cube), model="ngp", out=tmp_path / str(weight), steps=STEPS, eval_every=STEPS,
-                        device="cpu", model_options=SMALL_NGP, scene_box=[-1, -1, -1, 1, 1, 1], alpha_loss=weight,
-                        random_background=False,
-                        seed=0, progress=False)
-        errors[weight] = metrics["opacity_error"]
-    assert errors[DEFAULT_ALPHA_LOSS] < 0.5 * errors[0.0], errors
+    for name in ("colour only", cure):
+        metrics = train(str(white_cube), model="ngp", out=tmp_path / name.replace(" ", "-"), steps=STEPS,
+                        eval_every=STEPS, device="cpu", model_options=SMALL_NGP, scene_box=[-1, -1, -1, 1, 1, 1],
+                        seed=0, progress=False, **settings[name])
+        errors[name] = metrics["opacity_error"]
+    assert errors[cure] < 0.5 * errors["colour only"], errors
 
 
 def test_the_alpha_loss_leaves_the_reported_training_psnr_that_of_the_colour(white_cube, tmp_path):

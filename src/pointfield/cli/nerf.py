@@ -50,8 +50,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                        help="hold every N-th training view out for evaluation (for scenes without test views)")
     train.add_argument("--background", help="white, black or 'r,g,b' to composite alpha onto (default: the scene's)")
     train.add_argument("--random-background", action=argparse.BooleanOptionalAction, default=None,
-                       help="train against a random colour behind each ray, so that opacity matches the images' "
-                            "alpha (default: on where the images have alpha)")
+                       help="train as if a random colour were behind each ray (in expectation), so that opacity "
+                            "matches the images' alpha (default: on where the images have alpha)")
     train.add_argument("--alpha-loss", type=float, default=None, metavar="WEIGHT",
                        help="add WEIGHT x |rendered opacity - alpha| to the loss where the images have alpha "
                             "(default 0: off)")

@@ -64,7 +64,9 @@ from pointfield.scenes.scene import Scene
 from pointfield.training import lifecycle
 from pointfield.training.loop import TrainingState
 from pointfield.training.opacity import (
+    BACKGROUND_MEAN,
     alpha_loss_weight,
+    random_background_loss,
     recomposite,
     transparency_of,
     uses_random_background,
@@ -218,12 +220,18 @@ class NerfTask(Task):
         indices = self._rays_of_step(int(step), generator)
         background, target = self.background, self.colors[indices]
         if self.random_background:
-            # A random colour behind each ray: opacity must match alpha (training/opacity.py).
-            background = torch.rand(len(indices), 3, generator=generator).to(self.device)
+            # Random backgrounds in expectation: render and target over their mean colour, grey; the
+            # opacity term below is what their spread adds (training/opacity.py).
+            background = torch.full((3,), BACKGROUND_MEAN, device=self.device)
             target = recomposite(target, self.transparency[indices], self.background, background)
         output = self.model(self.rays[indices], background, jitter=True)
         losses = [torch.mean((rendered.color - target) ** 2) for rendered in output.passes]
-        stats = {"psnr": psnr_from_mse(float(losses[-1].detach()))}  # of the final pass's colour
+        if self.random_background:
+            alpha = 1 - self.transparency[indices]
+            losses = [loss + random_background_loss(rendered.opacity, alpha)
+                      for loss, rendered in zip(losses, output.passes)]
+        # Of the final pass's colour (over random backgrounds, in expectation, where they are on).
+        stats = {"psnr": psnr_from_mse(float(losses[-1].detach()))}
         if self.alpha_loss:
             alpha = 1 - self.transparency[indices]
             losses.append(self.alpha_loss * (output.passes[-1].opacity - alpha).abs().mean())
@@ -302,10 +310,11 @@ def train(
     pixels square is rendered and trained on. ``background`` ("white", "black" or an RGB
     triple) replaces the scene's: images' alpha is composited onto it and so is every render.
     Where the images have alpha, opacity is trained towards it (:mod:`pointfield.training.opacity`):
-    ``random_background`` draws a random colour behind each ray (None: on), and ``alpha_loss`` adds
-    ``weight * mean |opacity - alpha|`` to the loss (None: 0, off). ``distortion``: the weight of
-    mip-NeRF 360's distortion loss on the final pass's weights, which draws each ray's weight into
-    one thin layer (None: :data:`BOUNDED_NGP_DISTORTION` for ngp on a bounded scene, else 0).
+    ``random_background`` trains as if a random colour were behind each ray, in expectation
+    (None: on), and ``alpha_loss`` adds ``weight * mean |opacity - alpha|`` to the loss (None: 0,
+    off). ``distortion``: the weight of mip-NeRF 360's distortion loss on the final pass's
+    weights, which draws each ray's weight into one thin layer (None:
+    :data:`BOUNDED_NGP_DISTORTION` for ngp on a bounded scene, else 0).
     ``model_options`` go to the model's constructor (``samples`` for tiny,
     ``coarse_samples``/``fine_samples`` for nerf). ``scene_box`` (ngp only; see
     :func:`pointfield.fields.scene_box.scene_bounds`): "auto", "bounded", "unbounded" or six

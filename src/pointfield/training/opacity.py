@@ -5,18 +5,25 @@ is ``c = rgb a + B (1 - a)``. Trained only against ``c``, a model may render a s
 of ``B`` as transparent at no cost (white parts of an object on a white background come out
 half-transparent), and faint haze in empty space costs little. Two cures:
 
-- **random backgrounds** (fields, by default; as Instant-NGP does): a fresh random colour ``b``
-  behind each ray at every step, with the target moved onto the same colour,
+- **random backgrounds** (fields, by default), trained in expectation. Instant-NGP draws a fresh
+  random colour ``b``, uniform in [0, 1], behind each ray at every step and composites the target
+  on it too; only a render whose opacity ``A`` is ``a`` then matches every ``b``. With the
+  premultiplied colours ``C`` (render) and ``C*`` (image), the squared error of one channel is
+  ``(C - C* + b (a - A))^2``, whose mean over backgrounds of mean ``m`` and variance ``v`` is
 
-      c' = c + (b - B)(1 - a) = rgb a + b (1 - a),
+      (C + m (1 - A) - C* - m (1 - a))^2 + v (A - a)^2,
 
-  so the render composited on ``b`` and the target agree only where the opacity is ``a``;
+  the error over the constant background ``m`` plus ``v`` times the squared opacity error. For
+  Instant-NGP's draw, ``m = 1/2`` and ``v = 1/12``. pointfield computes this mean exactly: the
+  render and the target over grey (:func:`recomposite`), plus :func:`random_background_loss`;
+  the same objective as drawn colours, without their sampling noise;
 - **the alpha loss** (splats, by default, weight :data:`DEFAULT_ALPHA_LOSS`; fields when asked):
   ``weight * mean |rendered opacity - a|`` over the step's rays or pixels added to the loss.
 
-Why random backgrounds for fields and the alpha loss for splats, with the figures and the
-commands that measured them: docs/geometry.md, "Opacity, not only colour". Evaluation and
-rendering keep the scene's background. Photos without alpha train on colour alone.
+Why random backgrounds for fields (and why in expectation, over grey), and the alpha loss for
+splats, with the figures and the commands that measured them: docs/geometry.md, "Opacity, not
+only colour". Evaluation and rendering keep the scene's background. Photos without alpha train
+on colour alone.
 """
 
 from __future__ import annotations
@@ -28,6 +35,12 @@ from pointfield.scenes.scene import Scene
 
 DEFAULT_ALPHA_LOSS = 0.1
 """Weight of ``mean |rendered opacity - alpha|`` where the images have alpha (``--alpha-loss``)."""
+
+BACKGROUND_MEAN = 0.5
+"""Per-channel mean of the random backgrounds: that of a colour uniform in [0, 1]."""
+
+BACKGROUND_VARIANCE = 1 / 12
+"""Per-channel variance of the random backgrounds: that of a colour uniform in [0, 1]."""
 
 
 def has_alpha(scene: Scene, frames) -> bool:
@@ -54,6 +67,15 @@ def transparency_of(scene: Scene, frames) -> torch.Tensor | None:
     if any(alpha is None for alpha in alphas):
         return None
     return torch.from_numpy(np.concatenate([1 - alpha.reshape(-1) for alpha in alphas]).astype(np.float32))
+
+
+def random_background_loss(opacity: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """``BACKGROUND_VARIANCE * mean (opacity - alpha)^2``: what random backgrounds add, in expectation,
+    to the mean squared colour error over :data:`BACKGROUND_MEAN` (module docstring).
+
+    ``opacity`` and ``alpha`` are shaped alike (one value per ray or pixel).
+    """
+    return BACKGROUND_VARIANCE * torch.mean((opacity - alpha) ** 2)
 
 
 def recomposite(colors: torch.Tensor, transparency: torch.Tensor, scene_background: torch.Tensor,
