@@ -125,7 +125,7 @@ def ngp_run(tmp_path_factory):
 
 
 def test_ngp_learns_the_cube(ngp_run):
-    # A healthy run reaches about 21.9 dB held-out here (20.4 with drawn random backgrounds; 19.0
+    # A healthy run reaches about 21.9 dB held-out here (20.3 with drawn random backgrounds; 19.0
     # after 120 steps: the cube's box has room around it, so fewer of the grid's cells fall on the
     # cube); a run whose colour network has died renders the silhouette only, about 17 dB.
     _, metrics = ngp_run

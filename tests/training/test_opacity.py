@@ -91,25 +91,35 @@ def white_cube(tmp_path_factory):
     return data
 
 
+OPACITY_SETTINGS = {"colour only": {"alpha_loss": 0.0, "random_background": False},
+                    "alpha loss": {"alpha_loss": DEFAULT_ALPHA_LOSS, "random_background": False},
+                    "random backgrounds": {"alpha_loss": 0.0, "random_background": True}}
+
+
+def _white_cube_opacity_error(white_cube, out, setting: str) -> float:
+    from pointfield.fields.train import train
+
+    metrics = train(str(white_cube), model="ngp", out=out, steps=STEPS, eval_every=STEPS, device="cpu",
+                    model_options=SMALL_NGP, scene_box=[-1, -1, -1, 1, 1, 1], seed=0, progress=False,
+                    **OPACITY_SETTINGS[setting])
+    return metrics["opacity_error"]
+
+
+@pytest.fixture(scope="module")
+def colour_only_opacity_error(white_cube, tmp_path_factory):
+    return _white_cube_opacity_error(white_cube, tmp_path_factory.mktemp("colour-only"), "colour only")
+
+
 @pytest.mark.parametrize("cure", ["alpha loss", "random backgrounds"])
-def test_opacity_training_learns_the_opacity_that_colour_cannot_show(white_cube, tmp_path, cure):
+def test_opacity_training_learns_the_opacity_that_colour_cannot_show(white_cube, colour_only_opacity_error,
+                                                                     tmp_path, cure):
     """A white cube on white: the colour loss is blind to opacity; the alpha loss or random backgrounds find the cube.
 
     The hash-grid field starts thick (opaque everywhere in its box); colour alone leaves it so.
     Splats are checked on lego by ``make bench-geometry`` (opacity error 0.006 against 0.34).
     """
-    from pointfield.fields.train import train
-
-    settings = {"colour only": {"alpha_loss": 0.0, "random_background": False},
-                "alpha loss": {"alpha_loss": DEFAULT_ALPHA_LOSS, "random_background": False},
-                "random backgrounds": {"alpha_loss": 0.0, "random_background": True}}
-    errors = {}
-    for name in ("colour only", cure):
-        metrics = train(str(white_cube), model="ngp", out=tmp_path / name.replace(" ", "-"), steps=STEPS,
-                        eval_every=STEPS, device="cpu", model_options=SMALL_NGP, scene_box=[-1, -1, -1, 1, 1, 1],
-                        seed=0, progress=False, **settings[name])
-        errors[name] = metrics["opacity_error"]
-    assert errors[cure] < 0.5 * errors["colour only"], errors
+    error = _white_cube_opacity_error(white_cube, tmp_path, cure)
+    assert error < 0.5 * colour_only_opacity_error, (error, colour_only_opacity_error)
 
 
 def test_the_alpha_loss_leaves_the_reported_training_psnr_that_of_the_colour(white_cube, tmp_path):

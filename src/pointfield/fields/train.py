@@ -167,6 +167,12 @@ class NerfTask(Task):
         # 1 - alpha of every training ray; both are off (0 / False) where the images have no alpha.
         self.transparency = (transparency_of(self.scene, self.train_frames).to(device)
                              if self.alpha_loss or self.random_background else None)
+        # The background training renders over, and the targets moved onto it: random backgrounds
+        # in expectation render over their mean colour, grey (training/opacity.py).
+        self.training_background = self.background
+        if self.random_background:
+            self.training_background = torch.full((3,), BACKGROUND_MEAN, device=device)
+            self.colors = recomposite(self.colors, self.transparency, self.background, self.training_background)
         self.near, self.far = depth_bounds(self.scene)
         # A run made before the distortion loss existed was trained without it, and resumes so.
         self.distortion = float(config.get("distortion", 0.0))
@@ -218,22 +224,16 @@ class NerfTask(Task):
         generator = torch.Generator().manual_seed(self.config["seed"] * 1_000_003 + int(step))
         self.model.before_step(int(step), generator)
         indices = self._rays_of_step(int(step), generator)
-        background, target = self.background, self.colors[indices]
+        alpha = None if self.transparency is None else 1 - self.transparency[indices]
+        output = self.model(self.rays[indices], self.training_background, jitter=True)
+        losses = [torch.mean((rendered.color - self.colors[indices]) ** 2) for rendered in output.passes]
         if self.random_background:
-            # Random backgrounds in expectation: render and target over their mean colour, grey; the
-            # opacity term below is what their spread adds (training/opacity.py).
-            background = torch.full((3,), BACKGROUND_MEAN, device=self.device)
-            target = recomposite(target, self.transparency[indices], self.background, background)
-        output = self.model(self.rays[indices], background, jitter=True)
-        losses = [torch.mean((rendered.color - target) ** 2) for rendered in output.passes]
-        if self.random_background:
-            alpha = 1 - self.transparency[indices]
+            # What the random backgrounds' spread adds to the colour error, in expectation.
             losses = [loss + random_background_loss(rendered.opacity, alpha)
                       for loss, rendered in zip(losses, output.passes)]
         # Of the final pass's colour (over random backgrounds, in expectation, where they are on).
         stats = {"psnr": psnr_from_mse(float(losses[-1].detach()))}
         if self.alpha_loss:
-            alpha = 1 - self.transparency[indices]
             losses.append(self.alpha_loss * (output.passes[-1].opacity - alpha).abs().mean())
         if self.distortion:
             # Each ray's weight drawn into one thin layer; distances in units of the scene's depth range.
