@@ -49,8 +49,9 @@ import pointfield
 from pointfield.clouds.formats.registry import read
 from pointfield.fields.train import train as train_field
 from pointfield.geometry import export_cloud, export_mesh
+from pointfield.geometry.clouds import rendered_depth_maps
 from pointfield.geometry.compare import sample_mesh, surface_scores
-from pointfield.geometry.meshes import mesh_from_volume, rendered_depth_maps
+from pointfield.geometry.meshes import mesh_from_volume
 from pointfield.geometry.tsdf import TSDFVolume, fuse
 from pointfield.scenes.heldout import open_scene, training_and_heldout
 from pointfield.scenes.synthetic import make_scene

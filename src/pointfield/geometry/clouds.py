@@ -171,6 +171,22 @@ def render_views(scene_run, cameras, progress: bool = True,
     return views
 
 
+def rendered_depth_maps(scene_run, cameras, min_opacity: float = 0.5, progress: bool = True,
+                        views: list[dict[str, torch.Tensor]] | None = None,
+                        depth: str = "expected") -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """``[(z-depth (H, W), colour (H, W, 3))]`` of every camera as the run renders it; 0 depth where
+    the opacity is below ``min_opacity`` (what TSDF fusion takes). ``views``: the renders, when
+    already made (:func:`render_views`)."""
+    rendered = render_views(scene_run, cameras, progress, given=views, depth=depth)
+    views = []
+    for index, view in enumerate(rendered):
+        rays = cameras.rays(index)
+        z_depth = view["depth"].to(rays.axis_cosine) * rays.axis_cosine
+        z_depth = torch.where(view["opacity"].to(z_depth.device) >= min_opacity, z_depth, torch.zeros_like(z_depth))
+        views.append((z_depth.float(), view["rgb"]))
+    return views
+
+
 def cameras_of(scene_run, path: str, frames: int | None):
     """The cameras to render geometry from, on the run's device: the run's training views
     ("dataset", the first ``frames`` of them if given) or ``frames`` cameras of an orbit / spiral."""

@@ -18,7 +18,8 @@
 6. Write PLY or OFF (pointfield's writers), OBJ or GLB (trimesh), atomically.
 
 ``method="density"`` replaces steps 1 to 3 for a bounded field run: marching cubes on the field's
-density itself, no view rendered (:mod:`pointfield.geometry.density`).
+density itself, the training views rendered coarsely only to fill what they do not see
+(:mod:`pointfield.geometry.density`).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ import torch
 
 from pointfield.clouds.mesh import Mesh
 from pointfield.errors import PointfieldError
-from pointfield.geometry.clouds import cameras_of, open_scene_run, render_views
+from pointfield.geometry.clouds import cameras_of, open_scene_run, rendered_depth_maps
 from pointfield.geometry.density import (
     default_threshold,
     density_field,
@@ -220,22 +221,6 @@ def _export_density_mesh(scene_run, out: Path, *, resolution, threshold, crop, f
         "threshold": float(threshold), "grid": list(shape), "voxel": voxel, "box": [list(low), list(high)],
         "box_source": box_source,
     }
-
-
-def rendered_depth_maps(scene_run, cameras, min_opacity: float = 0.5, progress: bool = True,
-                        views: list[dict[str, torch.Tensor]] | None = None,
-                        depth: str = "expected") -> list[tuple[torch.Tensor, torch.Tensor]]:
-    """``[(z-depth (H, W), colour (H, W, 3))]`` of every camera as the run renders it; 0 depth where
-    the opacity is below ``min_opacity`` (what TSDF fusion takes). ``views``: the renders, when
-    already made (:func:`~pointfield.geometry.clouds.render_views`)."""
-    rendered = render_views(scene_run, cameras, progress, given=views, depth=depth)
-    views = []
-    for index, view in enumerate(rendered):
-        rays = cameras.rays(index)
-        z_depth = view["depth"].to(rays.axis_cosine) * rays.axis_cosine
-        z_depth = torch.where(view["opacity"].to(z_depth.device) >= min_opacity, z_depth, torch.zeros_like(z_depth))
-        views.append((z_depth.float(), view["rgb"]))
-    return views
 
 
 def _between_observed(vertices: np.ndarray, observed: np.ndarray) -> np.ndarray:
