@@ -63,8 +63,9 @@ from pointfield.geometry.clouds import cameras_of, rendered_depth_maps
 from pointfield.geometry.tsdf import grid_shape
 from pointfield.scenes.cameras import Cameras
 
-BYTES_PER_VOXEL = 4
-"""The padded float32 density grid that marching cubes reads (its output grows with the surface only)."""
+BYTES_PER_VOXEL = 4 + 8
+"""The padded float32 density grid that marching cubes reads, and :func:`fill_unseen`'s int64
+index of each voxel under the level (marching cubes' output grows with the surface only)."""
 DENSITY_CHUNK = 1 << 17
 """Points per density query: bounds the field's working memory."""
 COLOUR_RAY_VOXELS = 2.0
