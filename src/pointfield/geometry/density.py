@@ -60,7 +60,7 @@ from pointfield.fields.rays import RayBundle
 from pointfield.fields.run import RENDER_CHUNK, FieldRun
 from pointfield.fields.scene_box import scene_bounds
 from pointfield.geometry.clouds import cameras_of, rendered_depth_maps
-from pointfield.geometry.tsdf import grid_shape
+from pointfield.geometry.tsdf import grid_shape, pixels_under
 from pointfield.scenes.cameras import Cameras
 
 BYTES_PER_VOXEL = 4 + 8
@@ -274,26 +274,20 @@ def fill_unseen(
 
     inner = grid[1:-1, 1:-1, 1:-1]
     device = cameras.device
-    cameras = cameras.to(device, torch.float32)
+    cameras = cameras.to(dtype=torch.float32)
     farthest = []
     for depth in depth_maps:
         surface = torch.where(depth > 0, depth, torch.inf).to(device, torch.float32)
         farthest.append(torch.nn.functional.max_pool2d(surface[None, None], 3, stride=1, padding=1)[0, 0].reshape(-1))
     low = torch.as_tensor(np.asarray(low, np.float64), dtype=torch.float32, device=device)
-    shape = torch.tensor(inner.shape, device=device)
     candidates = torch.from_numpy(np.flatnonzero(inner <= threshold)).to(device)
     unseen = []
     for flat in tqdm(candidates.split(VISIBILITY_CHUNK), desc="visibility", unit="chunk", disable=not progress):
-        index = torch.stack([flat // (shape[1] * shape[2]), (flat // shape[2]) % shape[1], flat % shape[2]], dim=1)
-        centres = low + (index.float() + 0.5) * voxel
+        centres = low + (torch.stack(torch.unravel_index(flat, inner.shape), dim=1).float() + 0.5) * voxel
         in_an_image = torch.zeros(len(flat), dtype=torch.bool, device=device)
         for camera, surface in enumerate(farthest):
-            pixels, z_depth = cameras[[camera]].project(centres)
-            column, row = pixels[0].floor().nan_to_num(-1).unbind(-1)
-            width, height = int(cameras.width[camera]), int(cameras.height[camera])
-            inside = (column >= 0) & (column < width) & (row >= 0) & (row < height)
-            behind = surface[torch.where(inside, row * width + column, 0).long()] + margin * voxel
-            seen = inside & (z_depth[0] < behind)
+            pixel, inside, z_depth = pixels_under(cameras[[camera]], centres)
+            seen = inside & (z_depth < surface[pixel] + margin * voxel)
             in_an_image |= inside
             flat, centres, in_an_image = flat[~seen], centres[~seen], in_an_image[~seen]
         unseen.append(flat[in_an_image])

@@ -191,12 +191,7 @@ class TSDFVolume:
         camera = cameras[[index]].to(self.device, torch.float32)
         depth = depth.to(self.device, torch.float32).reshape(-1)
         rgb = rgb.to(self.device, torch.float32).reshape(-1, 3)
-        height, width = int(camera.height[0]), int(camera.width[0])
-        pixels, z = _project(camera, self.centres)
-        column = torch.floor(pixels[:, 0]).nan_to_num(-1)
-        row = torch.floor(pixels[:, 1]).nan_to_num(-1)
-        inside = (column >= 0) & (column < width) & (row >= 0) & (row < height) & (z > 0)
-        pixel = torch.where(inside, row * width + column, 0).long()
+        pixel, inside, z = pixels_under(camera, self.centres)
         seen = depth[pixel]
         sdf = seen - z
         observed = inside & (seen > 0) & (sdf >= -self.truncation)
@@ -239,6 +234,18 @@ def fuse(volume: TSDFVolume, views: Iterable[tuple[torch.Tensor, torch.Tensor]],
     for index, (depth, rgb) in enumerate(views):
         volume.integrate(depth, rgb, cameras, index)
     return volume
+
+
+def pixels_under(camera: Cameras, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Where world ``points`` ``(P, 3)`` land in one camera's image: the flat index ``row * W + column``
+    ``(P,)`` of the pixel holding each (0 where none does), whether one does (in the image, in front
+    of the camera), and each point's z-depth."""
+    pixels, z = _project(camera, points)
+    width, height = int(camera.width[0]), int(camera.height[0])
+    column = torch.floor(pixels[:, 0]).nan_to_num(-1)
+    row = torch.floor(pixels[:, 1]).nan_to_num(-1)
+    inside = (column >= 0) & (column < width) & (row >= 0) & (row < height) & (z > 0)
+    return torch.where(inside, row * width + column, 0).long(), inside, z
 
 
 def _project(camera: Cameras, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
