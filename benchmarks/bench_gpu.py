@@ -50,6 +50,20 @@ def psnr_at(curve: list[dict], seconds: float) -> dict | None:
     return before[-1] if before else None
 
 
+def model_option(text: str) -> tuple[str, int | float]:
+    """``KEY=NUMBER`` from the command line -> ``(key, int or float)``."""
+    key, separator, value = text.partition("=")
+    if not separator or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY=NUMBER, got {text!r}")
+    try:
+        return key, int(value)
+    except ValueError:
+        try:
+            return key, float(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number after {key}=, got {value!r}") from None
+
+
 def train_scene_model(model: str, args, out: Path) -> dict:
     """Train ``model`` ("ngp" or "splat") on lego into ``out``: its curve and final figures."""
     from pointfield.training import RunDirectory
@@ -61,15 +75,17 @@ def train_scene_model(model: str, args, out: Path) -> dict:
     if model == "ngp":
         from pointfield.fields.train import train
 
-        options = {"target_samples": args.ngp_target_samples} if args.ngp_target_samples else None
-        metrics = train(args.scene, model="ngp", background="white", model_options=options, **common)
+        options = dict(args.ngp_option)
+        if args.ngp_target_samples:
+            options["target_samples"] = args.ngp_target_samples
+        metrics = train(args.scene, model="ngp", background="white", model_options=options or None, **common)
     else:
         from pointfield.splats.train import train
 
         metrics = train(args.scene, **common)
     wall = time.perf_counter() - started
     curve = training_curve(RunDirectory(out).read_metrics_log(), metrics)
-    return {"final_psnr": round(metrics["psnr"], 3), "steps": metrics["steps"], "finished": metrics["steps"] >= common["steps"],
+    return {"final_psnr": round(metrics["psnr"], 3), "model_options": options if model == "ngp" else None, "steps": metrics["steps"], "finished": metrics["steps"] >= common["steps"],
             "training_seconds": curve[-1]["training_seconds"], "outside_clock_seconds": round(wall - metrics["seconds"], 1),
             "curve": curve}
 
@@ -162,6 +178,9 @@ def main() -> int:
     parser.add_argument("--ngp-eval-every", type=int, default=500)
     parser.add_argument("--ngp-target-samples", type=int, default=1 << 18,
                         help="samples per training step (default 2^18, instant-ngp's; 0 = the model's default)")
+    parser.add_argument("--ngp-option", type=model_option, action="append", default=[], metavar="KEY=NUMBER",
+                        help="an InstantNGP option, e.g. levels=16 (repeatable; the paper's hash grid: levels=16 "
+                             "features_per_level=2 log2_table_size=19)")
     parser.add_argument("--splat-seconds", type=float, default=600.0)
     parser.add_argument("--splat-steps", type=int, default=30_000)
     parser.add_argument("--splat-eval-every", type=int, default=1000)
