@@ -56,3 +56,17 @@ def test_lego_is_bounded_by_a_box_around_the_model(shared_data):
     model_extent = torch.tensor([[-0.7, -1.2, -0.4], [0.7, 1.0, 1.1]], dtype=torch.float64)  # lego's bulldozer
     assert bool((box[0] < model_extent[0]).all() and (box[1] > model_extent[1]).all())
     assert bool((box[1] - box[0] < 4).all())
+
+
+def test_a_new_ngp_run_takes_the_papers_hash_grid_on_cuda_only(cube_scene):
+    from pointfield.fields.ngp import CUDA_OPTIONS, InstantNGP
+    from pointfield.fields.train import default_ngp_options
+
+    on_cpu = default_ngp_options(cube_scene, "auto", torch.device("cpu"))
+    on_cuda = default_ngp_options(cube_scene, "auto", torch.device("cuda"))  # nothing is allocated
+    assert set(on_cpu) == {"box", "unbounded", "max_resolution"}  # the model's own (CPU) grid
+    assert on_cpu["max_resolution"] == 64  # twice the 16 px images' side, but at least 64 (scene_box.py)
+    assert on_cuda == {**on_cpu, **CUDA_OPTIONS}
+    model = InstantNGP(**{**on_cuda, "log2_table_size": 12})  # the paper's grid builds on any device
+    assert model.step_size == pytest.approx(math.sqrt(3) * 1.2 / 1024)
+    assert model.grid.resolution == 128

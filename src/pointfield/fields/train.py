@@ -41,6 +41,7 @@ import torch
 
 from pointfield.errors import PointfieldError
 from pointfield.fields.field import RayBudget
+from pointfield.fields.ngp import CUDA_OPTIONS
 from pointfield.fields.rays import RayBundle
 from pointfield.fields.rendering import distortion_loss
 from pointfield.fields.run import (
@@ -90,6 +91,24 @@ It is what puts the field's surfaces where they are: without it, the textured cu
 1-3 % of the diagonal too deep, behind a soft shell of density (``make bench-geometry``,
 benchmarks/RESULTS.md). Unbounded captures keep it off until it is measured on them.
 """
+
+
+def default_ngp_options(scene: Scene, scene_box, device: torch.device) -> dict[str, Any]:
+    """The ``ngp`` options a new run takes from its scene and device, under the user's own.
+
+    The box and whether it is unbounded (``scene_box``, :func:`scene_bounds`), the finest
+    hash-grid level (:func:`default_max_resolution`), and on CUDA the paper's hash grid
+    (:data:`~pointfield.fields.ngp.CUDA_OPTIONS`). They are written into the run's config, so a
+    run resumed on another device keeps the grid it was trained with.
+    """
+    try:
+        box, unbounded = scene_bounds(scene, scene_box)
+    except ValueError as error:
+        raise PointfieldError(str(error)) from None
+    chosen = {"box": box, "unbounded": unbounded, "max_resolution": default_max_resolution(scene, unbounded)}
+    if device.type == "cuda":
+        chosen.update(CUDA_OPTIONS)
+    return chosen
 
 
 def scene_rays(scene: Scene, frames: Sequence[int], device: torch.device) -> tuple[RayBundle, torch.Tensor]:
@@ -146,13 +165,8 @@ class NerfTask(Task):
         self.on_evaluate = on_evaluate
         self.scene = open_scene_of(config)
         self.train_frames, self.heldout_frames = training_and_heldout(self.scene)
-        if config["model"] == "ngp" and "box" not in config["model_options"]:
-            try:
-                box, unbounded = scene_bounds(self.scene, config.get("scene_box", "auto"))
-            except ValueError as error:
-                raise PointfieldError(str(error)) from None
-            chosen = {"box": box, "unbounded": unbounded,
-                      "max_resolution": default_max_resolution(self.scene, unbounded)}
+        if config["model"] == "ngp" and "box" not in config["model_options"]:  # a new run: a resume has its box
+            chosen = default_ngp_options(self.scene, config.get("scene_box", "auto"), device)
             config["model_options"] = {**chosen, **config["model_options"]}
         if "distortion" in config and config["distortion"] is None:
             bounded = config["model"] == "ngp" and not config["model_options"].get("unbounded", False)
