@@ -30,7 +30,7 @@ from pointfield.streaming.memory import (
     DEFAULT_MEMORY,
     MemoryPlan,
     plan,
-    return_freed_arrays,
+    returning_freed_arrays,
 )
 from pointfield.streaming.readahead import read_ahead
 
@@ -86,15 +86,15 @@ def streaming_job(
     cluster that ``workers`` / ``scheduler`` / ``client`` name (:func:`~.distributed.cluster`).
 
     A job holds its budget only if freed chunks leave the process, hence
-    :func:`~.memory.return_freed_arrays` first.
+    :func:`~.memory.returning_freed_arrays` around it.
     """
-    return_freed_arrays()
-    options = {"columns": columns} if columns is not None else {}
-    sources = [open_source(path, **options) for path in paths]
-    templates = [template_of(source) for source in sources]
-    budget = plan(memory, max(bytes_per_point(t) for t in templates), points)
-    with distributed.cluster(workers, scheduler, client) as dask_client:
-        yield Job(sources, templates, options, budget, dask_client, scratch, progress)
+    with returning_freed_arrays():
+        options = {"columns": columns} if columns is not None else {}
+        sources = [open_source(path, **options) for path in paths]
+        templates = [template_of(source) for source in sources]
+        budget = plan(memory, max(bytes_per_point(t) for t in templates), points)
+        with distributed.cluster(workers, scheduler, client) as dask_client:
+            yield Job(sources, templates, options, budget, dask_client, scratch, progress)
 
 
 def output_done(path: str | os.PathLike[str], overwrite: bool) -> bool:

@@ -4,16 +4,19 @@ A budget is the resident memory a job may use, the interpreter and its libraries
 :func:`plan` divides it: the interpreter's own footprint (measured, at least
 ``BASELINE_BYTES``), the chunks in flight (the one read ahead, the one read, converted and
 reduced: ``CHUNK_COPIES`` copies of a chunk), and what remains for a verb's running state (the voxel accumulators of
-``downsample``), which spills to disk when it outgrows its share. A job also fixes glibc's mmap
-threshold (:func:`return_freed_arrays`, called by :func:`~.jobs.streaming_job`), without which
-freed chunks stay resident and memory grows with the input rather than staying at the budget.
+``downsample``), which spills to disk when it outgrows its share. While a job runs, glibc's mmap
+threshold is fixed (:func:`returning_freed_arrays`, entered by :func:`~.jobs.streaming_job`),
+without which freed chunks stay resident and memory grows with the input rather than staying at
+the budget.
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import psutil
@@ -74,28 +77,47 @@ def plan(budget: int | str, bytes_per_point: int, chunk_points: int | None = Non
     return MemoryPlan(budget, int(chunk_points), int(max(usable - chunk_bytes, usable // 4)))
 
 
-def return_freed_arrays() -> None:
-    """Make glibc give every freed array of 1 MiB or more straight back to the system.
+@contextlib.contextmanager
+def returning_freed_arrays() -> Iterator[None]:
+    """Inside, glibc gives every freed array of 1 MiB or more straight back to the system.
 
     By default glibc raises its mmap threshold each time a large block is freed, up to 32 MiB,
     after which chunk-sized arrays come from heap arenas (one per thread: the reading thread
     allocates, the main one frees) that keep what was freed: resident memory creeps up with
-    every chunk, and with the input's size. A fixed threshold keeps it at the budget. Only
-    glibc has ``mallopt``; elsewhere this does nothing.
+    every chunk, and with the input's size. A fixed 1 MiB threshold keeps it at the budget.
+
+    The setting is the whole process's, and costly outside a job: every tensor of a megabyte is
+    then mapped and faulted in afresh (a hash-grid field trained 1.6 to 1.8 times slower after a
+    downsample in the same process). glibc cannot go back to its dynamic thresholds, so on the
+    way out they are fixed where the dynamic ones end after large frees (mmap 32 MiB, trim 64
+    MiB). Nested jobs restore once, when the outermost ends. Only glibc has ``mallopt``;
+    elsewhere this does nothing.
     """
-    global _RETURNING
-    if _RETURNING:
-        return
-    _RETURNING = True
+    global _JOBS_INSIDE
+    _JOBS_INSIDE += 1
+    if _JOBS_INSIDE == 1:
+        _mallopt(_M_MMAP_THRESHOLD, 1 << 20)
+    try:
+        yield
+    finally:
+        _JOBS_INSIDE -= 1
+        if _JOBS_INSIDE == 0:
+            _mallopt(_M_MMAP_THRESHOLD, GLIBC_MMAP_THRESHOLD_MAX)
+            _mallopt(_M_TRIM_THRESHOLD, 2 * GLIBC_MMAP_THRESHOLD_MAX)
+
+
+def _mallopt(parameter: int, value: int) -> None:
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        libc.mallopt(_M_MMAP_THRESHOLD, 1 << 20)
+        libc.mallopt(parameter, value)
     except (OSError, AttributeError):
         pass
 
 
-_RETURNING = False
-_M_MMAP_THRESHOLD = -3  # glibc's malloc.h
+_JOBS_INSIDE = 0
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc's malloc.h
+GLIBC_MMAP_THRESHOLD_MAX = 32 << 20
+"""Where glibc's dynamic mmap threshold stops rising on 64-bit systems (its trim threshold: twice that)."""
 
 
 def resident_bytes() -> int:
