@@ -54,15 +54,15 @@ DIRECTION_SH_DEGREE = 3  # bands l = 0..3: 16 values, tiny-cuda-nn's "degree 4"
 GEOMETRY_FEATURES = 15
 EARLY_STOP_TRANSMITTANCE = 1e-4
 UNBOUNDED_FAR = 1e3
+"""Unbounded scenes are sampled out to this many radii of the region of interest."""
 
-#: The instant-ngp paper's hash grid and marching (16 levels of 2 features, a 2^19 table, 1,024
-#: steps across the box, a 128^3 occupancy grid, 2^18 samples a step), which ``nerf train`` uses
-#: on CUDA devices. A GPU pays per byte, not per random access (see :class:`InstantNGP`): on one
-#: H100, lego at 800 x 800 reached 35.3 dB held out after 115 s of training and 36.4 dB after
-#: 233 s with these, where the CPU defaults stopped at 31.2 dB (docs/gpu.md).
 CUDA_OPTIONS = {"levels": 16, "features_per_level": 2, "log2_table_size": 19, "steps_across_box": 1024,
                 "grid_resolution": 128, "target_samples": 1 << 18}
-"""Unbounded scenes are sampled out to this many radii of the region of interest."""
+"""The instant-ngp paper's hash grid and marching (16 levels of 2 features, a 2^19 table, 1,024
+steps across the box, a 128^3 occupancy grid, 2^18 samples a step), which ``nerf train`` uses on
+CUDA devices. A GPU pays per byte, not per random access (see :class:`InstantNGP`): on one H100,
+lego at 800 x 800 reached 35.3 dB held out after 115 s of training and 36.4 dB after 233 s with
+these, where the CPU's defaults stopped at 31.2 dB (docs/gpu.md)."""
 
 
 class NGPField(nn.Module):

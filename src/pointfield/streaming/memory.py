@@ -16,6 +16,7 @@ import contextlib
 import ctypes
 import ctypes.util
 import re
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -94,16 +95,18 @@ def returning_freed_arrays() -> Iterator[None]:
     elsewhere this does nothing.
     """
     global _JOBS_INSIDE
-    _JOBS_INSIDE += 1
-    if _JOBS_INSIDE == 1:
-        _mallopt(_M_MMAP_THRESHOLD, 1 << 20)
+    with _JOBS_LOCK:  # a library user may run jobs in several threads at once
+        _JOBS_INSIDE += 1
+        if _JOBS_INSIDE == 1:
+            _mallopt(_M_MMAP_THRESHOLD, 1 << 20)
     try:
         yield
     finally:
-        _JOBS_INSIDE -= 1
-        if _JOBS_INSIDE == 0:
-            _mallopt(_M_MMAP_THRESHOLD, GLIBC_MMAP_THRESHOLD_MAX)
-            _mallopt(_M_TRIM_THRESHOLD, 2 * GLIBC_MMAP_THRESHOLD_MAX)
+        with _JOBS_LOCK:
+            _JOBS_INSIDE -= 1
+            if _JOBS_INSIDE == 0:
+                _mallopt(_M_MMAP_THRESHOLD, GLIBC_MMAP_THRESHOLD_MAX)
+                _mallopt(_M_TRIM_THRESHOLD, 2 * GLIBC_MMAP_THRESHOLD_MAX)
 
 
 def _mallopt(parameter: int, value: int) -> None:
@@ -115,6 +118,7 @@ def _mallopt(parameter: int, value: int) -> None:
 
 
 _JOBS_INSIDE = 0
+_JOBS_LOCK = threading.Lock()
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc's malloc.h
 GLIBC_MMAP_THRESHOLD_MAX = 32 << 20
 """Where glibc's dynamic mmap threshold stops rising on 64-bit systems (its trim threshold: twice that)."""
