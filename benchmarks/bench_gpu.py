@@ -72,20 +72,18 @@ def train_scene_model(model: str, args, out: Path) -> dict:
               "downscale": args.downscale, "holdout_every": 10, "device": args.device,
               "eval_every": getattr(args, f"{model}_eval_every"), "steps": getattr(args, f"{model}_steps")}
     started = time.perf_counter()
+    options = dict(args.ngp_option) if model == "ngp" else None
     if model == "ngp":
         from pointfield.fields.train import train
 
-        options = dict(args.ngp_option)
-        if args.ngp_target_samples:
-            options["target_samples"] = args.ngp_target_samples
-        metrics = train(args.scene, model="ngp", background="white", model_options=options or None, **common)
+        metrics = train(args.scene, model="ngp", background="white", model_options=options, **common)
     else:
         from pointfield.splats.train import train
 
         metrics = train(args.scene, **common)
     wall = time.perf_counter() - started
     curve = training_curve(RunDirectory(out).read_metrics_log(), metrics)
-    return {"final_psnr": round(metrics["psnr"], 3), "model_options": options if model == "ngp" else None, "steps": metrics["steps"], "finished": metrics["steps"] >= common["steps"],
+    return {"final_psnr": round(metrics["psnr"], 3), "model_options": options, "steps": metrics["steps"], "finished": metrics["steps"] >= common["steps"],
             "training_seconds": curve[-1]["training_seconds"], "outside_clock_seconds": round(wall - metrics["seconds"], 1),
             "curve": curve}
 
@@ -176,11 +174,9 @@ def main() -> int:
     parser.add_argument("--ngp-seconds", type=float, default=300.0)
     parser.add_argument("--ngp-steps", type=int, default=20_000, help="the learning rate decays over these")
     parser.add_argument("--ngp-eval-every", type=int, default=500)
-    parser.add_argument("--ngp-target-samples", type=int, default=1 << 18,
-                        help="samples per training step (default 2^18, instant-ngp's; 0 = the model's default)")
     parser.add_argument("--ngp-option", type=model_option, action="append", default=[], metavar="KEY=NUMBER",
-                        help="an InstantNGP option, e.g. levels=16 (repeatable; the paper's hash grid: levels=16 "
-                             "features_per_level=2 log2_table_size=19)")
+                        help="an InstantNGP option over nerf train's defaults (on CUDA the paper's hash grid and 2^18 "
+                             "samples a step, pointfield.fields.ngp.CUDA_OPTIONS), e.g. log2_table_size=17; repeatable")
     parser.add_argument("--splat-seconds", type=float, default=600.0)
     parser.add_argument("--splat-steps", type=int, default=30_000)
     parser.add_argument("--splat-eval-every", type=int, default=1000)

@@ -88,7 +88,7 @@ def returning_freed_arrays() -> Iterator[None]:
     every chunk, and with the input's size. A fixed 1 MiB threshold keeps it at the budget.
 
     The setting is the whole process's, and costly outside a job: every tensor of a megabyte is
-    then mapped and faulted in afresh (a hash-grid field trained 1.6 to 1.8 times slower after a
+    then mapped and faulted in afresh (a hash-grid field trained 1.4 to 1.8 times slower after a
     downsample in the same process). glibc cannot go back to its dynamic thresholds, so on the
     way out they are fixed where the dynamic ones end after large frees (mmap 32 MiB, trim 64
     MiB). Nested jobs restore once, when the outermost ends. Only glibc has ``mallopt``;
