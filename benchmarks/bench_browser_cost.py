@@ -8,8 +8,10 @@ SwiftShader, at the tests' viewport) spend on one connected page, 10 s per phase
 
 - the page idle (viser's client redraws once a second);
 - the page receiving a status text every 0.5 s, as a watched training run sends;
-- the page receiving a 256 x 256 JPEG frame (what a moving camera gets during training) every
-  1 s, then every 2 s; the browser's CPU per frame is what the frames add over the idle page.
+- the page receiving a 256 x 256 JPEG frame as the 3D view's background (what ``pointfield view``
+  sends a nerf run's tab) every 1 s, then every 2 s; the browser's CPU per frame is what the
+  frames add over the idle page;
+- the same frame as a picture in the page's panel (what a watched training run sends) every 1 s.
 
 The browser's processes are this process's descendants (playwright's driver starts Chromium), so
 other browsers on the machine are not counted. Run: ``python benchmarks/bench_browser_cost.py``;
@@ -62,7 +64,8 @@ def main() -> int:
         "browser-cost", "What a viewer page costs the browser that draws it (software WebGL, same CPU)", issue="15",
         about=f"Headless Chromium (SwiftShader WebGL) at a {VIEWPORT[0]} x {VIEWPORT[1]} viewport on one "
               f"`pointfield view` page; CPU seconds of the browser's processes over {PHASE_SECONDS:.0f} s per "
-              "phase: idle, a status text every 0.5 s, a 256 x 256 JPEG frame every 1 s and every 2 s.",
+              "phase: idle, a status text every 0.5 s, a 256 x 256 JPEG frame as the 3D view's background every 1 s "
+              "and every 2 s, the same frame as a picture in the panel every 1 s.",
     )
     # A smooth picture, as renders are (noise would make every frame's JPEG larger than a render's).
     y, x = np.mgrid[0:256, 0:256] / 255.0
@@ -81,9 +84,17 @@ def main() -> int:
             def send_frame(i: int) -> None:
                 viewer.server.scene.set_background_image(np.roll(frame, i, axis=1), format="jpeg", jpeg_quality=85)
 
+            picture = viewer.server.gui.add_image(frame, label="live render", format="jpeg", jpeg_quality=85)
+
+            def send_picture(i: int) -> None:
+                picture.image = np.roll(frame, i, axis=1)
+
+            time.sleep(1.0)  # the picture's first layout
             plan = [("idle page", None, 0.5), ("status text every 0.5 s", show_status, 0.5),
-                    ("256 x 256 frame every 1 s", send_frame, 1.0), ("256 x 256 frame every 2 s", send_frame, 2.0)]
-            phases = {name: (*phase(action, every), action is send_frame) for name, action, every in plan}
+                    ("256 x 256 background frame every 1 s", send_frame, 1.0),
+                    ("256 x 256 background frame every 2 s", send_frame, 2.0),
+                    ("256 x 256 panel picture every 1 s", send_picture, 1.0)]
+            phases = {name: (*phase(action, every), action in (send_frame, send_picture)) for name, action, every in plan}
         finally:
             page.close()
             viewer.close()
@@ -99,7 +110,8 @@ def main() -> int:
                   "CPU s per frame (over idle)"], rows, title="The browser's CPU while drawing one viewer page")
     record.note(f"viser's client ({version('viser')}) draws continuously for 250 ms after every scene message "
                 "(RENDER_SETTLE_MS in its App.tsx), all of it in software here; status texts change only the "
-                "panel. Training on the same 2 cores loses what the browser takes: see bench_viewer.py.")
+                "panel, and so do pictures in it. Training on the same 2 cores loses what the browser takes: see "
+                "bench_viewer.py.")
     return record.finish()
 
 

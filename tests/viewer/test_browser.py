@@ -114,6 +114,8 @@ def test_training_is_watched_live_and_pauses_from_the_page(page_of, tmp_path):
             training = threading.Thread(target=train, args=(None,), kwargs=settings, daemon=True)
             training.start()
             wait_for(lambda: view.frames_during_training > 0 or None, 60, "a frame rendered while training")
+            # while training runs, frames go to the panel (cheap for a browser drawing in software)
+            assert any(tab.picture is not None for tab in view.renderer.tabs.values())
             page.get_by_role("button", name="pause").click()
             wait_for(lambda: view.holding.is_set() or None, 60, "training to pause")
             steps = view_step(view)

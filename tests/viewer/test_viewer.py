@@ -166,32 +166,48 @@ def test_a_splat_run_s_gaussians_leave_the_page_while_the_server_renders_it(serv
     assert scene.get_handle_by_name(node) is not None and not view.renderer.enabled
 
 
-def test_training_leaves_a_browser_on_this_machine_one_thread_until_it_ends(tmp_path, monkeypatch):
-    # OpenMP threads preempted by a local browser stall each other: splat steps were 50x slower.
+def test_training_leaves_a_browser_on_this_machine_one_thread_while_its_camera_moves(tmp_path):
+    # OpenMP threads preempted by a local browser stall each other: splat steps were 50x slower
+    # while the browser drew a moving camera's view; with the camera still they need both threads.
     from pointfield.training.loop import TrainingState
-    from pointfield.viewer.training import TrainingView
+    from pointfield.viewer.fields import BrowserRenderer, TabState
+    from pointfield.viewer.training import BROWSER_BUSY_AFTER_MOVE, TrainingView
 
     viewer = start_viewer(port=0)
     try:
         view = TrainingView(viewer, tmp_path / "run")
         view._attaching = threading.Thread(target=lambda: None)  # no run to open: only the threads are watched
         view._attaching.start()
+        renderer = BrowserRenderer(viewer, lambda cameras, outputs: [], (0.0, 1.0))
+        renderer.enabled = False  # nothing drawn: the tab below has no browser behind it
+        renderer.tabs[0] = TabState(client=None)
         threads_seen = []
 
         def train_watched() -> None:
             torch.set_num_threads(2)
             with view:
                 view.after_step(None, TrainingState(), 0.1)
-                threads_seen.append(torch.get_num_threads())  # no tab yet
-                monkeypatch.setattr(viewer.server, "get_clients", lambda: {0: "a tab"})
+                threads_seen.append(torch.get_num_threads())  # no renderer yet
+                view.renderer = renderer
                 view.after_step(None, TrainingState(step=1), 0.1)
+                threads_seen.append(torch.get_num_threads())  # the camera never moved
+                renderer._moved(0)
+                view.after_step(None, TrainingState(step=2), 0.1)
+                threads_seen.append(torch.get_num_threads())  # it moves
+                renderer.tabs[0].moved_at -= BROWSER_BUSY_AFTER_MOVE
+                view.after_step(None, TrainingState(step=3), 0.1)
+                threads_seen.append(torch.get_num_threads())  # still again
+                renderer._moved(0)
+                view.after_step(None, TrainingState(step=4), 0.1)
                 threads_seen.append(torch.get_num_threads())
-            threads_seen.append(torch.get_num_threads())
+                renderer.tabs.clear()  # before training ends and the final model is drawn
+            threads_seen.append(torch.get_num_threads())  # training ended while it moved
 
         training = threading.Thread(target=train_watched)
         training.start()
         training.join(30)
-        assert threads_seen == [2, 1, 2]
+        assert threads_seen == [2, 2, 1, 2, 1, 2]
+        assert (view.steps, view.steps_sharing) == (5, 2)
     finally:
         viewer.close()
 

@@ -25,7 +25,8 @@ import os
 import threading
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -104,6 +105,8 @@ class TabState:
     moved_at: float = 0.0
     full_drawn: bool = True
     frames: list[Frame] = field(default_factory=list)
+    picture: viser.GuiImageHandle | None = None
+    """The tab's picture in the panel, while frames go there (:attr:`BrowserRenderer.into_panel`)."""
 
     def due(self, now: float, still_after: float = STILL_AFTER) -> str | None:
         """``"moving"`` (a change not drawn yet: drawn small first, whatever comes next),
@@ -136,6 +139,13 @@ class BrowserRenderer:
         self.lock = threading.Lock()
         self.wake = threading.Event()
         self.enabled = True
+        self.into_panel = False
+        """Send frames as a picture in each tab's panel instead of the 3D view's background.
+
+        A browser without a GPU draws the 3D view in software, for 250 ms after every
+        background frame: about 0.85 CPU seconds a frame at 1024 x 640, against 0.07 for
+        the same frame as a panel picture (``benchmarks/bench_browser_cost.py``). Live
+        training (:mod:`pointfield.viewer.training`) sends its frames there."""
         self.shown = viewer.server.gui.add_dropdown(label, list(choices), initial_value=choices[0])
         self.shown.on_update(lambda _: self.invalidate())
         self._thread: threading.Thread | None = None
@@ -163,6 +173,11 @@ class BrowserRenderer:
                 tab.moved_at = time.monotonic()
                 tab.full_drawn = False
         self.wake.set()
+
+    def last_moved(self) -> float:
+        """``time.monotonic()`` of the last camera move of any tab (0.0 when none moved yet)."""
+        with self.lock:
+            return max((tab.moved_at for tab in self.tabs.values()), default=0.0)
 
     def invalidate(self) -> None:
         """Redraw every tab at full size (the model or what is shown changed)."""
@@ -225,19 +240,26 @@ class BrowserRenderer:
         image = picture(view, self.shown.value, *self.near_far)
         axis_cosine = cameras.rays(0).axis_cosine.double().numpy()
         z_depth = np.where(view["opacity"] > 0.5, view["depth"] * axis_cosine, NO_SURFACE_DEPTH)
-        with warnings.catch_warnings():
-            # A tab closed while its frame rendered: viser warns that the frame goes nowhere, which is fine.
-            warnings.filterwarnings("ignore", "Queued a BackgroundImageMessage on a closed connection")
-            tab.client.scene.set_background_image(image, format="jpeg", jpeg_quality=85, depth=z_depth)
+        with _closed_tabs_ignored():
+            if not self.into_panel:
+                tab.client.scene.set_background_image(image, format="jpeg", jpeg_quality=85, depth=z_depth)
+            elif tab.picture is None:
+                tab.picture = tab.client.gui.add_image(image, label="live render", format="jpeg", jpeg_quality=85)
+            else:
+                tab.picture.image = image
             tab.client.flush()
         return True
 
     def clear(self) -> None:
-        """Take the rendered frames off every tab (another node shows the model instead)."""
+        """Take the rendered frames off every tab: the background and the panel's pictures."""
         with self.lock:
             tabs = list(self.tabs.values())
         for tab in tabs:
-            tab.client.scene.set_background_image(None)
+            with _closed_tabs_ignored():
+                tab.client.scene.set_background_image(None)
+                if tab.picture is not None:
+                    tab.picture.remove()
+                    tab.picture = None
 
     def warm_up(self) -> None:
         """Render and encode one tiny frame now: kernel compilation and the image encoder's first
@@ -267,6 +289,14 @@ class BrowserRenderer:
         """Every frame drawn so far, for every tab (the last 1,000 of each)."""
         with self.lock:
             return [frame for tab in self.tabs.values() for frame in tab.frames]
+
+
+@contextmanager
+def _closed_tabs_ignored() -> Iterator[None]:
+    """A tab closed while its frame rendered: viser warns that the message goes nowhere, which is fine."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Queued a .* on a closed connection")
+        yield
 
 
 def _has_camera(client: viser.ClientHandle) -> bool:

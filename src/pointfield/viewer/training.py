@@ -13,17 +13,23 @@ training thread (:func:`pointfield.training.loop.watched_by`). It shows, on the 
 
 Viewing must not slow training much. Frames are rendered in the training thread (so the model
 is never read mid-step) only when a tab's camera moved or the model changed, and at most so often
-that rendering takes :data:`RENDER_SHARE` of the time: after a frame that took ``r`` seconds,
-the next waits ``r / RENDER_SHARE`` seconds. The page reports what viewing cost so far.
+that they take :data:`RENDER_SHARE` of the time: after a frame that took ``r`` seconds to render
+and send, the next waits ``(r + BROWSER_SECONDS_PER_FRAME) / RENDER_SHARE`` seconds, counting what
+a browser on the same machine spends drawing it. While training runs, frames go to a picture in
+the page's panel, not to the 3D view's background: a browser without a GPU draws the 3D view in
+software, and a background frame costs it twelve times the CPU of a panel picture
+(:attr:`~pointfield.viewer.fields.BrowserRenderer.into_panel`). The page reports what viewing
+cost so far.
 
 A browser on the same machine draws the page on the same processors (all of it, without a GPU:
-software WebGL). Once a tab is connected to a page bound to the loopback address, training
-leaves it one: torch's intra-op threads go down by one (never below one) until training ends.
-torch's OpenMP threads wait for each other at every operation, and when one of them is
-preempted by the browser the rest wait with it. With bench_viewer.py's training set-up (splats
-on the cube, 2 cores) and this rule switched off, steps took 5x as long with the page's camera
-still and 50x with it moving; docs/viewer.md gives the figures with it
-(``python benchmarks/bench_viewer.py --only training``).
+software WebGL). torch's OpenMP threads wait for each other at every operation, and when one of
+them is preempted by the browser the rest wait with it: with bench_viewer.py's training set-up
+(splats on the cube, 2 cores) and the browser drawing every frame into its 3D view, steps took
+5x as long with the page's camera still and 50x with it moving. The browser draws the 3D view
+continuously while its camera moves; so while a tab on a page bound to the loopback address moves
+its camera (and for :data:`BROWSER_BUSY_AFTER_MOVE` seconds after), training leaves it one
+thread: torch's intra-op threads go down by one (never below one), and back up once the camera
+is still. docs/viewer.md gives the figures (``python benchmarks/bench_viewer.py --only training``).
 """
 
 from __future__ import annotations
@@ -46,9 +52,15 @@ from pointfield.viewer.scenes import scene_framing
 from pointfield.viewer.server import DEFAULT_HOST, DEFAULT_PORT, Viewer, start_viewer
 
 RENDER_SHARE = 0.05
-"""Most of the training time that rendering for the browser may take (a twentieth)."""
-STATUS_EVERY = 0.5
-"""Seconds between updates of the step, loss and PSNR on the page."""
+"""Most of the training time that frames for the browser may take (a twentieth)."""
+BROWSER_SECONDS_PER_FRAME = 0.1
+"""CPU seconds a browser without a GPU spends on one 256 x 256 panel picture: 0.07 measured
+(``benchmarks/bench_browser_cost.py``), rounded up. Counted in each frame's cost (module doc)."""
+BROWSER_BUSY_AFTER_MOVE = 1.0
+"""Seconds after a tab's last camera move during which its browser counts as drawing."""
+STATUS_EVERY = 2.0
+"""Seconds between updates of the step, loss and PSNR on the page (each costs the browser a
+layout: 0.02 CPU s, bench_browser_cost.py)."""
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 """A page bound to one of these is seen by a browser on this machine (see the module doc)."""
 
@@ -85,7 +97,10 @@ class TrainingView:
         self.frames_during_training = 0
         self._last: tuple[TrainingState, float] | None = None
         self.threads_before: int | None = None
-        """torch's threads before one was left to a local browser; None while none was."""
+        """torch's threads before one was left to a local browser; None while none is."""
+        self.steps_sharing = 0
+        """Steps taken with a thread left to the browser (its camera moving)."""
+        self.steps = 0
         self._threads_owner: int | None = None
         gui = viewer.server.gui
         with gui.add_folder("training"):
@@ -114,8 +129,9 @@ class TrainingView:
         """Update the page; render when due and cheap enough; wait while paused (see the module doc)."""
         entered = time.perf_counter()
         self._last = (state, loss)
-        if self.threads_before is None and self.viewer.host in LOOPBACK_HOSTS and self.viewer.server.get_clients():
-            self._leave_a_thread()
+        self._share_threads(self._browser_drawing())
+        self.steps += 1
+        self.steps_sharing += self.threads_before is not None
         if self._attaching is None:
             # Opening the run's scene can take seconds (the synthetic cube is rendered): not here.
             self._attaching = threading.Thread(target=self._attach, args=(model,), daemon=True,
@@ -131,35 +147,59 @@ class TrainingView:
             if drawn:
                 took = time.perf_counter() - entered
                 self.frames_during_training += drawn
-                self.next_render = time.perf_counter() + took / self.render_share
+                self.next_render = time.perf_counter() + (took + drawn * BROWSER_SECONDS_PER_FRAME) / self.render_share
         self.viewing_seconds += time.perf_counter() - entered
         if not self.paused:
             return 0.0
+        return self._hold(state, loss)
+
+    def _hold(self, state: TrainingState, loss: float) -> float:
+        """Wait while paused, the model drawn into the 3D view meanwhile; returns the seconds waited."""
         paused_at = time.perf_counter()
+        self._share_threads(False)
         self._report(state, loss)
         self.holding.set()
         while not self.resumed.wait(0.05):
-            if self.renderer is not None:
-                self.renderer.draw_due()
+            renderer = self.renderer
+            if renderer is not None:
+                renderer.into_panel = False  # training waits: the browser may draw all it likes
+                renderer.draw_due()
+        if self.renderer is not None:
+            self.renderer.clear()
+            self.renderer.into_panel = True
         self.holding.clear()
         self._report(state, loss)
         return time.perf_counter() - paused_at
 
+    # -- the threads left to a browser on this machine ------------------------------------------
+
+    def _browser_drawing(self) -> bool:
+        """Whether a browser on this machine is drawing the 3D view: a tab moved its camera lately."""
+        renderer = self.renderer
+        return (renderer is not None and self.viewer.host in LOOPBACK_HOSTS
+                and time.monotonic() - renderer.last_moved() < BROWSER_BUSY_AFTER_MOVE)
+
     @property
     def threads_watched(self) -> int | None:
-        """torch's threads training uses once one is left to the browser; None while none is."""
+        """torch's threads training uses while one is left to the browser; None while none is."""
         return None if self.threads_before is None else max(1, self.threads_before - 1)
 
-    def _leave_a_thread(self) -> None:
-        """One torch thread fewer for training, in the training thread (the setting is per thread)."""
-        self.threads_before = torch.get_num_threads()
-        self._threads_owner = threading.get_ident()
-        torch.set_num_threads(self.threads_watched)
+    def _share_threads(self, leave_one: bool) -> None:
+        """Leave the browser one torch thread, or take it back; in the training thread (the setting is per thread)."""
+        if leave_one and self.threads_before is None:
+            self.threads_before = torch.get_num_threads()
+            self._threads_owner = threading.get_ident()
+            torch.set_num_threads(self.threads_watched)
+        elif not leave_one and self.threads_before is not None:
+            if self._threads_owner == threading.get_ident():
+                torch.set_num_threads(self.threads_before)
+            self.threads_before = None
 
     def _attach(self, model: nn.Module) -> None:
         device = next(model.parameters()).device
         run = live_run(self.directory, model, device)
         renderer = BrowserRenderer(self.viewer, run.render, depth_range_of(run))
+        renderer.into_panel = True
         self.viewer.first_look(*scene_framing(run.scene, back=1.0, lift=0.2))
         self.renderer = renderer
 
@@ -189,14 +229,15 @@ class TrainingView:
     def finish(self) -> None:
         """Stop watching; the page goes on showing the final model (rendered on camera moves)."""
         self._watching.__exit__(None, None, None)
-        if self.threads_before is not None and self._threads_owner == threading.get_ident():
-            torch.set_num_threads(self.threads_before)
+        self._share_threads(False)
         self.finished = True
         self.resumed.set()
         self.pause_button.visible = False
         if self._attaching is not None:
             self._attaching.join()
         if self.renderer is not None:
+            self.renderer.into_panel = False
+            self.renderer.clear()
             self.renderer.invalidate()
             self.renderer.start()  # the final model, rendered from its own thread from now on
         if self._last is not None:
