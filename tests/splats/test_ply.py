@@ -8,7 +8,7 @@ import pointfield
 from pointfield.clouds.cloud import PointCloud
 from pointfield.errors import FormatError
 from pointfield.splats.gaussians import Gaussians
-from pointfield.splats.ply import read_splats, write_splats
+from pointfield.splats.ply import read_splat_mode, read_splats, write_splats
 
 REAL_PLY = "gaussians/3dgs_point_cloud_iter7000.ply"
 
@@ -67,3 +67,21 @@ def test_a_wrong_number_of_f_rest_properties_is_a_format_error(tmp_path):
     pointfield.write(tmp_path / "bad.ply", PointCloud(np.zeros((2, 3), np.float32), fields))
     with pytest.raises(FormatError, match="f_rest"):
         read_splats(tmp_path / "bad.ply")
+
+
+def test_the_rasterizer_mode_travels_in_a_header_comment_and_3dgs_files_are_classic(shared_data, tmp_path):
+    assert read_splat_mode(shared_data / REAL_PLY) == {"antialiased": False, "screen_dilation": 0.3}
+    gaussians = read_splats(shared_data / REAL_PLY)
+    write_splats(tmp_path / "aa.ply", gaussians, {"antialiased": True, "screen_dilation": 0.1})
+    assert read_splat_mode(tmp_path / "aa.ply") == {"antialiased": True, "screen_dilation": 0.1}
+    assert b"comment pointfield rasterizer antialiased=1 screen_dilation=0.1\n" in (tmp_path / "aa.ply").read_bytes()[:4096]
+    torch.testing.assert_close(read_splats(tmp_path / "aa.ply").means, gaussians.means, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("comment", ["antialiased=yes screen_dilation=0.3", "antialiased=1 screen_dilation=-1",
+                                     "antialiased=1", "antialiased=0 screen_dilation=nan"])
+def test_a_malformed_mode_comment_is_a_format_error(tmp_path, comment):
+    cloud = PointCloud(np.zeros((2, 3), np.float32), {}, metadata={"comments": [f"pointfield rasterizer {comment}"]})
+    pointfield.write(tmp_path / "bad.ply", cloud)
+    with pytest.raises(FormatError, match="bad.ply.*expected 'pointfield rasterizer antialiased=0|1"):
+        read_splat_mode(tmp_path / "bad.ply")

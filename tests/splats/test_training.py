@@ -163,7 +163,9 @@ def test_commands_train_export_and_render(tiny_scene, tmp_path, capsys):
 
 def test_an_antialiased_run_records_its_mode_and_dilation_and_renders_in_them(tiny_scene, tmp_path, capsys):
     import pointfield
+    from pointfield.splats.ply import read_splat_mode
     from pointfield.splats.run import camera_matrices, rasterizer_mode
+    from pointfield.splats.run import render as splat_render
 
     assert main(["splat", "train", str(tiny_scene), "--out", str(tmp_path / "run"), "--steps", "4",
                  "--initial-splats", "200", "--antialiased", "--screen-dilation", "0.1", "--no-progress"]) == 0
@@ -179,6 +181,12 @@ def test_an_antialiased_run_records_its_mode_and_dilation_and_renders_in_them(ti
     torch.testing.assert_close(opacity, rendered[True, 0.1].clamp(0, 1))
     for other in ((False, 0.3), (True, 0.3)):
         assert float((rendered[other] - rendered[True, 0.1]).abs().max()) > 1e-3, f"{other} should differ here"
+    # Exported, the splats keep their mode (a header comment), and a render of the file draws in it.
+    assert main(["splat", "export", str(tmp_path / "run"), "--out", str(tmp_path / "aa.ply")]) == 0
+    assert read_splat_mode(tmp_path / "aa.ply") == {"antialiased": True, "screen_dilation": 0.1}
+    rendered_file = splat_render(tmp_path / "aa.ply", scene=tiny_scene, path="dataset", frames=1,
+                                 out=tmp_path / "aa-frames", outputs=("opacity",))
+    assert (rendered_file["antialiased"], rendered_file["screen_dilation"]) == (True, 0.1)
     # A run made before the settings existed was classic, with 3DGS's 0.3 px^2.
     assert rasterizer_mode({"task": "splat"}) == {"antialiased": False, "screen_dilation": 0.3}
     assert main(["splat", "train", str(tiny_scene), "--out", str(tmp_path / "bad"), "--steps", "4",

@@ -28,7 +28,7 @@ from pointfield.scenes.heldout import OUTPUTS, View, open_scene
 from pointfield.scenes.run import SceneRun, render_path
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
 from pointfield.splats.gsplat_rasterizer import choose_rasterizer, rasterization_gsplat
-from pointfield.splats.ply import read_splats, write_splats
+from pointfield.splats.ply import read_splat_mode, read_splats, write_splats
 from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization
 from pointfield.training.checkpoints import load_checkpoint
 from pointfield.training.lifecycle import open_run
@@ -153,10 +153,13 @@ class SplatRun(SceneRun):
 
 
 def export(run: str | os.PathLike[str], out: str | os.PathLike[str]) -> dict[str, Any]:
-    """Write a trained run's splats as a standard splat ``.ply``."""
-    gaussians = open_run((SplatRun,), run, "cpu").gaussians
-    write_splats(out, gaussians)
-    return {"out": str(out), "splats": len(gaussians), "sh_degree": gaussians.sh_degree}
+    """Write a trained run's splats as a standard splat ``.ply``, with the run's rasterizer mode
+    in a header comment (:mod:`pointfield.splats.ply`), so that rendering the file draws them as
+    they were trained to be drawn."""
+    opened = open_run((SplatRun,), run, "cpu")
+    gaussians, mode = opened.gaussians, rasterizer_mode(opened.config)
+    write_splats(out, gaussians, mode)
+    return {"out": str(out), "splats": len(gaussians), "sh_degree": gaussians.sh_degree, **mode}
 
 
 def export_centres(run: str | os.PathLike[str], out: str | os.PathLike[str]) -> dict[str, Any]:
@@ -210,13 +213,13 @@ def render(
         raise PointfieldError(f"{source}: a splat file has no cameras; pass --scene SCENE to render it")
     torch_device = pick_device(device)
     chosen = choose_rasterizer(rasterizer, torch_device)  # before anything is read or written
-    gaussians = read_splats(source).to(torch_device)
+    gaussians, mode = read_splats(source).to(torch_device), read_splat_mode(source)
     around = open_scene(scene, downscale)
     background = torch.as_tensor(around.background, dtype=torch.float32, device=torch_device)
 
     def render_cameras(cameras: Cameras, rendered: Sequence[str]) -> list[View]:
-        return [render_camera(gaussians, cameras, index, background, chosen, rendered)
+        return [render_camera(gaussians, cameras, index, background, chosen, rendered, **mode)
                 for index in range(len(cameras))]
 
     result = render_path(render_cameras, around, path, frames=frames, out=out, outputs=outputs)
-    return {**result, "splats": len(gaussians), "rasterizer": chosen}
+    return {**result, "splats": len(gaussians), "rasterizer": chosen, **mode}
