@@ -143,8 +143,8 @@ class BrowserRenderer:
         """Send frames as a picture in each tab's panel instead of the 3D view's background.
 
         A browser without a GPU draws the 3D view in software, for 250 ms after every
-        background frame: about 0.85 CPU seconds a frame at 1024 x 640, against 0.07 for
-        the same frame as a panel picture (``benchmarks/bench_browser_cost.py``). Live
+        background frame: 0.75 to 0.83 CPU seconds a frame at 1024 x 640, against 0.10
+        for the same frame as a panel picture (``benchmarks/bench_browser_cost.py``). Live
         training (:mod:`pointfield.viewer.training`) sends its frames there."""
         self.shown = viewer.server.gui.add_dropdown(label, list(choices), initial_value=choices[0])
         self.shown.on_update(lambda _: self.invalidate())

@@ -17,7 +17,7 @@ that they take :data:`RENDER_SHARE` of the time: after a frame that took ``r`` s
 and send, the next waits ``(r + BROWSER_SECONDS_PER_FRAME) / RENDER_SHARE`` seconds, counting what
 a browser on the same machine spends drawing it. While training runs, frames go to a picture in
 the page's panel, not to the 3D view's background: a browser without a GPU draws the 3D view in
-software, and a background frame costs it twelve times the CPU of a panel picture
+software, and a background frame costs it eight times the CPU of a panel picture
 (:attr:`~pointfield.viewer.fields.BrowserRenderer.into_panel`). The page reports what viewing
 cost so far.
 
@@ -25,7 +25,8 @@ A browser on the same machine draws the page on the same processors (all of it, 
 software WebGL). torch's OpenMP threads wait for each other at every operation, and when one of
 them is preempted by the browser the rest wait with it: with bench_viewer.py's training set-up
 (splats on the cube, 2 cores) and the browser drawing every frame into its 3D view, steps took
-5x as long with the page's camera still and 50x with it moving. The browser draws the 3D view
+5x as long with the page's camera still and 50x with it moving; leaving the thread for the whole
+run cost a hash-grid run a fifth of its speed by itself. The browser draws the 3D view
 continuously while its camera moves; so while a tab on a page bound to the loopback address moves
 its camera (and for :data:`BROWSER_BUSY_AFTER_MOVE` seconds after), training leaves it one
 thread: torch's intra-op threads go down by one (never below one), and back up once the camera
@@ -54,8 +55,8 @@ from pointfield.viewer.server import DEFAULT_HOST, DEFAULT_PORT, Viewer, start_v
 RENDER_SHARE = 0.05
 """Most of the training time that frames for the browser may take (a twentieth)."""
 BROWSER_SECONDS_PER_FRAME = 0.1
-"""CPU seconds a browser without a GPU spends on one 256 x 256 panel picture: 0.07 measured
-(``benchmarks/bench_browser_cost.py``), rounded up. Counted in each frame's cost (module doc)."""
+"""CPU seconds a browser without a GPU spends on one 256 x 256 panel picture, as measured by
+``benchmarks/bench_browser_cost.py`` (0.10 at 55879af). Counted in each frame's cost (module doc)."""
 BROWSER_BUSY_AFTER_MOVE = 1.0
 """Seconds after a tab's last camera move during which its browser counts as drawing."""
 STATUS_EVERY = 2.0
