@@ -61,7 +61,7 @@ BROWSER_BUSY_AFTER_MOVE = 1.0
 """Seconds after a tab's last camera move during which its browser counts as drawing."""
 STATUS_EVERY = 2.0
 """Seconds between updates of the step, loss and PSNR on the page (each costs the browser a
-layout: 0.02 CPU s, bench_browser_cost.py)."""
+layout: 0.02 to 0.04 CPU s, bench_browser_cost.py)."""
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 """A page bound to one of these is seen by a browser on this machine (see the module doc)."""
 
