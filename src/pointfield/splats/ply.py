@@ -37,15 +37,13 @@ from pointfield.clouds import read as read_cloud
 from pointfield.clouds import write as write_cloud
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats.ply import SPLAT_PROPERTIES
-from pointfield.clouds.formats.ply.header import parse_header
+from pointfield.clouds.formats.ply.header import HEADER_LIMIT, parse_header
 from pointfield.errors import FormatError
 from pointfield.splats.gaussians import Gaussians
 from pointfield.splats.rasterizer import SCREEN_DILATION
 
 MODE_COMMENT = "pointfield rasterizer"
 """The start of the header comment that records the rasterizer mode (module doc)."""
-HEADER_BYTES = 1 << 20
-"""The header is read from at most the file's first MiB (as pointfield's PLY reader does)."""
 
 
 def read_splats(path: str | os.PathLike[str], dtype: torch.dtype = torch.float32) -> Gaussians:
@@ -133,7 +131,7 @@ def read_splat_mode(path: str | os.PathLike[str]) -> dict[str, Any]:
     """
     path = Path(path)
     with path.open("rb") as file:
-        header = parse_header(path, file.read(HEADER_BYTES))
+        header = parse_header(path, file.read(HEADER_LIMIT))
     mode: dict[str, Any] = {"antialiased": False, "screen_dilation": SCREEN_DILATION}
     for comment in header.comments:
         if not comment.startswith(MODE_COMMENT + " "):
