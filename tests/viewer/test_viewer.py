@@ -259,3 +259,20 @@ def test_a_page_of_clouds_does_not_import_torch():
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
     imported = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
     assert imported.stdout.strip() == "[]"
+
+
+def test_the_first_frame_of_a_watched_run_does_not_set_the_pace(tmp_path):
+    # The first frame compiles the renderer's kernels (2 s on the benchmark's splats): paced by it,
+    # the page went 40 s without a second picture. Later frames are paced by what they cost.
+    from pointfield.viewer.training import BROWSER_SECONDS_PER_FRAME, TrainingView
+
+    viewer = start_viewer(port=0)
+    try:
+        view = TrainingView(viewer, tmp_path / "run", render_share=0.05)
+        first = view.frame_interval(2.0, 1)
+        assert first == pytest.approx(BROWSER_SECONDS_PER_FRAME / 0.05)
+        assert view.frame_interval(0.03, 1) == pytest.approx((0.03 + BROWSER_SECONDS_PER_FRAME) / 0.05)
+        assert view.frame_interval(0.5, 1) == pytest.approx((0.03 + BROWSER_SECONDS_PER_FRAME) / 0.05)  # one slow frame
+        assert view.frame_interval(0.5, 2) == pytest.approx((0.5 + 2 * BROWSER_SECONDS_PER_FRAME) / 0.05)  # slow frames
+    finally:
+        viewer.close()

@@ -15,7 +15,8 @@ Viewing must not slow training much. Frames are rendered in the training thread 
 is never read mid-step) only when a tab's camera moved or the model changed, and at most so often
 that they take :data:`RENDER_SHARE` of the time: after a frame that took ``r`` seconds to render
 and send, the next waits ``(r + BROWSER_SECONDS_PER_FRAME) / RENDER_SHARE`` seconds, counting what
-a browser on the same machine spends drawing it. While training runs, frames go to a picture in
+a browser on the same machine spends drawing it (``r`` is the cheaper of that frame and the one
+before: the first compiles kernels, :meth:`TrainingView.frame_interval`). While training runs, frames go to a picture in
 the page's panel, not to the 3D view's background: a browser without a GPU draws the 3D view in
 software, and a background frame costs it eight times the CPU of a panel picture
 (:attr:`~pointfield.viewer.fields.BrowserRenderer.into_panel`). The page reports what viewing
@@ -96,6 +97,7 @@ class TrainingView:
         self.next_render = 0.0
         self.next_status = 0.0
         self.frames_during_training = 0
+        self._previous_frame_seconds = 0.0
         self._last: tuple[TrainingState, float] | None = None
         self.threads_before: int | None = None
         """torch's threads before one was left to a local browser; None while none is."""
@@ -146,13 +148,24 @@ class TrainingView:
             renderer.invalidate()  # the model changed with this step
             drawn = renderer.draw_due(moving_only=True)
             if drawn:
-                took = time.perf_counter() - entered
                 self.frames_during_training += drawn
-                self.next_render = time.perf_counter() + (took + drawn * BROWSER_SECONDS_PER_FRAME) / self.render_share
+                self.next_render = time.perf_counter() + self.frame_interval(time.perf_counter() - entered, drawn)
         self.viewing_seconds += time.perf_counter() - entered
         if not self.paused:
             return 0.0
         return self._hold(state, loss)
+
+    def frame_interval(self, took: float, drawn: int) -> float:
+        """Seconds until the next frames, after ``drawn`` frames that took ``took`` seconds to render and send.
+
+        ``(r + drawn * BROWSER_SECONDS_PER_FRAME) / render_share``, where ``r`` is the cheaper of
+        ``took`` and the frames before (0 for the first): the first frame of a run compiles the
+        renderer's kernels (seconds, once), and paced by that alone the page would wait about
+        40 s for its second picture.
+        """
+        paced_by = min(took, self._previous_frame_seconds)
+        self._previous_frame_seconds = took
+        return (paced_by + drawn * BROWSER_SECONDS_PER_FRAME) / self.render_share
 
     def _hold(self, state: TrainingState, loss: float) -> float:
         """Wait while paused, the model drawn into the 3D view meanwhile; returns the seconds waited."""
