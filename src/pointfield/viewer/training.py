@@ -53,16 +53,19 @@ from pointfield.viewer.fields import BrowserRenderer, depth_range_of
 from pointfield.viewer.scenes import scene_framing
 from pointfield.viewer.server import DEFAULT_HOST, DEFAULT_PORT, Viewer, start_viewer
 
-RENDER_SHARE = 0.05
-"""Most of the training time that frames for the browser may take (a twentieth)."""
+RENDER_SHARE = 0.025
+"""Most of the training time that frames for the browser may take (a fortieth: a picture about
+every 5 s). Every message makes a browser without a GPU work on the same processors as training,
+and the rates matter: in interleaved one-off runs (docs/viewer.md) a twentieth with the status
+every 2 s cost splats +41 % and ngp +22 %, a fortieth with the status every 5 s +20 % and +3 %."""
 BROWSER_SECONDS_PER_FRAME = 0.1
 """CPU seconds a browser without a GPU spends on one 256 x 256 panel picture, as measured by
 ``benchmarks/bench_browser_cost.py`` (0.10 at 55879af). Counted in each frame's cost (module doc)."""
 BROWSER_BUSY_AFTER_MOVE = 1.0
 """Seconds after a tab's last camera move during which its browser counts as drawing."""
-STATUS_EVERY = 2.0
+STATUS_EVERY = 5.0
 """Seconds between updates of the step, loss and PSNR on the page (each costs the browser a
-layout: 0.02 to 0.04 CPU s, bench_browser_cost.py)."""
+layout: 0.02 to 0.04 CPU s, bench_browser_cost.py; see :data:`RENDER_SHARE` for why so seldom)."""
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 """A page bound to one of these is seen by a browser on this machine (see the module doc)."""
 
