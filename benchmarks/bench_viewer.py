@@ -30,6 +30,7 @@ Run: ``make bench-viewer`` (or ``python benchmarks/bench_viewer.py``); the recor
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import statistics
 import subprocess
@@ -180,6 +181,11 @@ def stream(browser, run: Path, server_render: bool, seconds: float) -> dict[str,
 
 
 # -- 3. training with --view -----------------------------------------------------------------------
+
+
+def seconds_or_dash(seconds: float) -> str:
+    """``seconds`` for a table, or a dash where nothing was measured (NaN)."""
+    return "-" if math.isnan(seconds) else f"{seconds:.2f}"
 
 
 class StepClock:
@@ -349,7 +355,7 @@ def main() -> int:
                     record.figures[f"training_{kind}_{camera}"] = cost
                     rows.append([kind, camera, f"{cost['without_ms']:.1f}", f"{cost['with_ms']:.1f}",
                                  f"{100 * cost['slowdown']:+.1f} %", f"{100 * cost['steady_slowdown']:+.1f} %",
-                                 f"{100 * cost['viewing_share']:.1f} %", f"{cost['warm_up_first_frame_s']:.2f}",
+                                 f"{100 * cost['viewing_share']:.1f} %", seconds_or_dash(cost["warm_up_first_frame_s"]),
                                  f"{cost['first_frame_s']:.2f}",
                                  f"{cost['frames']:.0f}", f"{100 * cost['steps_sharing']:.0f} %"])
                     record.verdict(f"{kind} training with --view, camera {camera}, at most "

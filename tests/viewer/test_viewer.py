@@ -263,7 +263,8 @@ def test_a_page_of_clouds_does_not_import_torch():
 
 def test_the_first_frame_of_a_watched_run_does_not_set_the_pace(tmp_path):
     # The first frame compiles the renderer's kernels (2 s on the benchmark's splats): paced by it,
-    # the page went 40 s without a second picture. Later frames are paced by what they cost.
+    # the page went 40 s (at a twentieth of the time) without a second picture. Later frames are
+    # paced by what they cost.
     from pointfield.viewer.training import BROWSER_SECONDS_PER_FRAME, TrainingView
 
     viewer = start_viewer(port=0)

@@ -16,11 +16,11 @@ is never read mid-step) only when a tab's camera moved or the model changed, and
 that they take :data:`RENDER_SHARE` of the time: after a frame that took ``r`` seconds to render
 and send, the next waits ``(r + BROWSER_SECONDS_PER_FRAME) / RENDER_SHARE`` seconds, counting what
 a browser on the same machine spends drawing it (``r`` is the cheaper of that frame and the one
-before: the first compiles kernels, :meth:`TrainingView.frame_interval`). While training runs, frames go to a picture in
-the page's panel, not to the 3D view's background: a browser without a GPU draws the 3D view in
-software, and a background frame costs it eight times the CPU of a panel picture
-(:attr:`~pointfield.viewer.fields.BrowserRenderer.into_panel`). The page reports what viewing
-cost so far.
+before: the first compiles kernels, :meth:`TrainingView.frame_interval`). While training runs,
+frames go to a picture in the page's panel, not to the 3D view's background: a browser without a
+GPU draws the 3D view in software, and a background frame costs it eight times the CPU of a panel
+picture (:attr:`~pointfield.viewer.fields.BrowserRenderer.into_panel`). The page reports what
+viewing cost so far.
 
 A browser on the same machine draws the page on the same processors (all of it, without a GPU:
 software WebGL). torch's OpenMP threads wait for each other at every operation, and when one of
@@ -163,8 +163,8 @@ class TrainingView:
 
         ``(r + drawn * BROWSER_SECONDS_PER_FRAME) / render_share``, where ``r`` is the cheaper of
         ``took`` and the frames before (0 for the first): the first frame of a run compiles the
-        renderer's kernels (seconds, once), and paced by that alone the page would wait about
-        40 s for its second picture.
+        renderer's kernels (seconds, once), and paced by that alone the page would wait a minute
+        or more for its second picture (2 s of compiling at a fortieth of the time: 84 s).
         """
         paced_by = min(took, self._previous_frame_seconds)
         self._previous_frame_seconds = took
