@@ -164,7 +164,8 @@ def test_commands_train_export_and_render(tiny_scene, tmp_path, capsys):
 def test_an_antialiased_run_records_its_mode_and_dilation_and_renders_in_them(tiny_scene, tmp_path, capsys):
     import pointfield
     from pointfield.splats.ply import read_splat_mode
-    from pointfield.splats.run import camera_matrices, rasterizer_mode
+    from pointfield.splats.rasterizer import rasterizer_mode
+    from pointfield.splats.run import camera_matrices, render_camera
     from pointfield.splats.run import render as splat_render
 
     assert main(["splat", "train", str(tiny_scene), "--out", str(tmp_path / "run"), "--steps", "4",
@@ -185,8 +186,15 @@ def test_an_antialiased_run_records_its_mode_and_dilation_and_renders_in_them(ti
     assert main(["splat", "export", str(tmp_path / "run"), "--out", str(tmp_path / "aa.ply")]) == 0
     assert read_splat_mode(tmp_path / "aa.ply") == {"antialiased": True, "screen_dilation": 0.1}
     rendered_file = splat_render(tmp_path / "aa.ply", scene=tiny_scene, path="dataset", frames=1,
-                                 out=tmp_path / "aa-frames", outputs=("opacity",))
+                                 out=tmp_path / "aa-frames", outputs=("depth",))
     assert (rendered_file["antialiased"], rendered_file["screen_dilation"]) == (True, 0.1)
+    # The file's depth (written as .npy, unquantised) is the run's own, and a classic draw's differs.
+    file_depth = torch.from_numpy(np.load(tmp_path / "aa-frames" / "depth_000.npy"))
+    run_depth = run.render(run.scene.cameras[[0]], outputs=("depth",))[0]["depth"]
+    classic_depth = render_camera(g, run.scene.cameras[[0]], 0, torch.ones(3), "pointfield", ("depth",),
+                                  antialiased=False, screen_dilation=0.3)["depth"]
+    torch.testing.assert_close(file_depth, run_depth)
+    assert float((file_depth - classic_depth).abs().max()) > 1e-3
     # A run made before the settings existed was classic, with 3DGS's 0.3 px^2.
     assert rasterizer_mode({"task": "splat"}) == {"antialiased": False, "screen_dilation": 0.3}
     assert main(["splat", "train", str(tiny_scene), "--out", str(tmp_path / "bad"), "--steps", "4",

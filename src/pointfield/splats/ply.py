@@ -14,7 +14,7 @@ blue (``f_rest[c * (K-1) + k]`` is coefficient k+1 of channel c). ``opacity`` is
 These are exactly :class:`~pointfield.splats.gaussians.Gaussians`' parameters, so writing
 then reading returns every attribute bit for bit.
 
-How the splats were trained to be drawn (:func:`~pointfield.splats.run.rasterizer_mode`: classic
+How the splats were trained to be drawn (:func:`~pointfield.splats.rasterizer.rasterizer_mode`: classic
 or antialiased, and the screen dilation) travels in a header comment that other programs ignore,
 ``comment pointfield rasterizer antialiased=1 screen_dilation=0.1`` (:data:`MODE_COMMENT`). A file
 without it is drawn as the original 3D Gaussian splatting code draws: classic, 0.3 px^2.
@@ -40,7 +40,7 @@ from pointfield.clouds.formats.ply import SPLAT_PROPERTIES
 from pointfield.clouds.formats.ply.header import HEADER_LIMIT, parse_header
 from pointfield.errors import FormatError
 from pointfield.splats.gaussians import Gaussians
-from pointfield.splats.rasterizer import SCREEN_DILATION
+from pointfield.splats.rasterizer import rasterizer_mode
 
 MODE_COMMENT = "pointfield rasterizer"
 """The start of the header comment that records the rasterizer mode (module doc)."""
@@ -127,12 +127,12 @@ def write_splats(path: str | os.PathLike[str], gaussians: Gaussians, mode: dict[
 def read_splat_mode(path: str | os.PathLike[str]) -> dict[str, Any]:
     """How a splat ``.ply``'s splats are drawn: its header comment, else 3DGS's classic mode, 0.3 px^2.
 
-    Returns the keyword arguments of the rasterizer, as :func:`~pointfield.splats.run.rasterizer_mode`.
+    Returns the keyword arguments of the rasterizer (:func:`~pointfield.splats.rasterizer.rasterizer_mode`).
     """
     path = Path(path)
     with path.open("rb") as file:
         header = parse_header(path, file.read(HEADER_LIMIT))
-    mode: dict[str, Any] = {"antialiased": False, "screen_dilation": SCREEN_DILATION}
+    recorded: dict[str, Any] = {}
     for comment in header.comments:
         if not comment.startswith(MODE_COMMENT + " "):
             continue
@@ -144,5 +144,5 @@ def read_splat_mode(path: str | os.PathLike[str]) -> dict[str, Any]:
         except (KeyError, ValueError):
             raise FormatError(path, f"header comment {comment[:80]!r}: expected '{MODE_COMMENT} antialiased=0|1 "
                                     f"screen_dilation=<a positive number of px^2>'") from None
-        mode = {"antialiased": antialiased == "1", "screen_dilation": dilation}
-    return mode
+        recorded = {"antialiased": antialiased == "1", "screen_dilation": dilation}
+    return rasterizer_mode(recorded)

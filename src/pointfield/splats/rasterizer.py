@@ -70,6 +70,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -105,6 +106,18 @@ BLOCK_ELEMENTS_NO_GRAD = 1 << 20
 # and 3.00 GiB), a render 95 and 36 ms with 2^20 and 2^24 (`make bench-gpu` measures this as
 # its "blocks" part). Other GPUs (MPS) keep the CPU's sizes: not measured there.
 GPU_BLOCK_ELEMENTS = 1 << 24
+
+
+def rasterizer_mode(settings: dict[str, Any]) -> dict[str, Any]:
+    """How splats are drawn, from a run's config or a splat file's header comment: ``antialiased``
+    and ``screen_dilation``, keyword arguments of :func:`rasterization` (and of
+    :func:`~pointfield.splats.run.render_views` and :func:`~pointfield.splats.run.render_camera`).
+
+    A missing setting takes its old behaviour (runs made before it existed, and files from the
+    original 3D Gaussian splatting code): classic mode, :data:`SCREEN_DILATION`.
+    """
+    return {"antialiased": bool(settings.get("antialiased", False)),
+            "screen_dilation": float(settings.get("screen_dilation", SCREEN_DILATION))}
 
 
 @dataclass

@@ -29,24 +29,13 @@ from pointfield.scenes.run import SceneRun, render_path
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
 from pointfield.splats.gsplat_rasterizer import choose_rasterizer, rasterization_gsplat
 from pointfield.splats.ply import read_splat_mode, read_splats, write_splats
-from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization
+from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization, rasterizer_mode
 from pointfield.training.checkpoints import load_checkpoint
 from pointfield.training.lifecycle import open_run
 from pointfield.training.run import RunDirectory
 from pointfield.viz.views import PANELS
 
 TASK = "splat"
-
-
-def rasterizer_mode(config: dict[str, Any]) -> dict[str, Any]:
-    """How a run's splats were trained to be drawn, from its ``config``: ``antialiased`` and
-    ``screen_dilation``, the keyword arguments of :func:`render_views` and :func:`render_camera`.
-
-    Runs made before a setting existed were trained with its old behaviour: classic mode, and
-    :data:`~pointfield.splats.rasterizer.SCREEN_DILATION`.
-    """
-    return {"antialiased": bool(config.get("antialiased", False)),
-            "screen_dilation": float(config.get("screen_dilation", SCREEN_DILATION))}
 
 
 def camera_matrices(cameras: Cameras, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
@@ -70,7 +59,7 @@ def render_views(
     or "auto" (:mod:`pointfield.splats.gsplat_rasterizer`). ``median_depth``: also
     ``meta["median_depths"]`` ``(C, H, W)`` (camera z, as the rasterizer gives it); gsplat
     renders none, so with gsplat pointfield's rasterizer renders it, in a second pass.
-    ``antialiased``, ``screen_dilation``: the rasterizers' mode and dilation (:func:`rasterizer_mode`:
+    ``antialiased``, ``screen_dilation``: the rasterizers' mode and dilation (:func:`~pointfield.splats.rasterizer.rasterizer_mode`:
     the ones the splats were trained with).
     """
     chosen = choose_rasterizer(rasterizer, gaussians.means.device)
@@ -118,7 +107,7 @@ def render_camera(
 
 class SplatRun(SceneRun):
     """A trained splat run: its Gaussians (all SH degrees the run reached) render any camera,
-    in the rasterizer mode they were trained in (:func:`rasterizer_mode`)."""
+    in the rasterizer mode they were trained in (:func:`~pointfield.splats.rasterizer.rasterizer_mode`)."""
 
     tasks = (TASK,)
 

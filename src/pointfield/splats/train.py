@@ -72,11 +72,10 @@ from pointfield.splats.loss import (
     opacity_entropy,
     splat_loss,
 )
-from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization
+from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization, rasterizer_mode
 from pointfield.splats.run import (
     TASK,
     camera_matrices,
-    rasterizer_mode,
     render_camera,
     render_views,
 )
