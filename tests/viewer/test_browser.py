@@ -118,6 +118,9 @@ def test_training_is_watched_live_and_pauses_from_the_page(page_of, tmp_path):
             assert any(tab.picture is not None for tab in view.renderer.tabs.values())
             page.get_by_role("button", name="pause").click()
             wait_for(lambda: view.holding.is_set() or None, 60, "training to pause")
+            # paused, the model is drawn into the 3D view, and the panel's picture is taken off
+            wait_for(lambda: all(tab.picture is None for tab in view.renderer.tabs.values()) or None, 10,
+                     "the live picture to leave the panel")
             steps = view_step(view)
             time.sleep(1.0)
             assert view_step(view) == steps  # paused: no step meanwhile

@@ -129,7 +129,7 @@ class BrowserRenderer:
 
     def __init__(self, viewer: Viewer, render: Render, near_far: tuple[float, float], *,
                  full_size: int = DEFAULT_FULL_SIZE, moving_size: int = MOVING_SIZE, label: str = "show",
-                 choices: Sequence[str] = SHOWN):
+                 choices: Sequence[str] = SHOWN, into_panel: bool = False):
         self.viewer = viewer
         self.render = render
         self.near_far = near_far
@@ -139,8 +139,9 @@ class BrowserRenderer:
         self.lock = threading.Lock()
         self.wake = threading.Event()
         self.enabled = True
-        self.into_panel = False
-        """Send frames as a picture in each tab's panel instead of the 3D view's background.
+        self.into_panel = into_panel
+        """Frames go to a picture in each tab's panel instead of the 3D view's background
+        (changed with :meth:`frames_to_panel`).
 
         A browser without a GPU draws the 3D view in software, for 250 ms after every
         background frame: 0.75 to 0.83 CPU seconds a frame at 1024 x 640, against 0.10
@@ -260,6 +261,14 @@ class BrowserRenderer:
                 if tab.picture is not None:
                     tab.picture.remove()
                     tab.picture = None
+
+    def frames_to_panel(self, into_panel: bool) -> None:
+        """Send frames to the panel's pictures (True) or the 3D view's background (False); on a
+        change, the frames in the old place are taken off and every tab is drawn again."""
+        if into_panel != self.into_panel:
+            self.into_panel = into_panel
+            self.clear()
+            self.invalidate()
 
     def warm_up(self) -> None:
         """Render and encode one tiny frame now: kernel compilation and the image encoder's first

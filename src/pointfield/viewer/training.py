@@ -165,6 +165,7 @@ class TrainingView:
         ``took`` and the frames before (0 for the first): the first frame of a run compiles the
         renderer's kernels (seconds, once), and paced by that alone the page would wait a minute
         or more for its second picture (2 s of compiling at a fortieth of the time: 84 s).
+        Remembers ``took`` for the next call.
         """
         paced_by = min(took, self._previous_frame_seconds)
         self._previous_frame_seconds = took
@@ -177,13 +178,12 @@ class TrainingView:
         self._report(state, loss)
         self.holding.set()
         while not self.resumed.wait(0.05):
-            renderer = self.renderer
+            renderer = self.renderer  # set meanwhile when the pause came before the scene was open
             if renderer is not None:
-                renderer.into_panel = False  # training waits: the browser may draw all it likes
+                renderer.frames_to_panel(False)  # training waits: the browser may draw all it likes
                 renderer.draw_due()
         if self.renderer is not None:
-            self.renderer.clear()
-            self.renderer.into_panel = True
+            self.renderer.frames_to_panel(True)
         self.holding.clear()
         self._report(state, loss)
         return time.perf_counter() - paused_at
@@ -215,8 +215,7 @@ class TrainingView:
     def _attach(self, model: nn.Module) -> None:
         device = next(model.parameters()).device
         run = live_run(self.directory, model, device)
-        renderer = BrowserRenderer(self.viewer, run.render, depth_range_of(run))
-        renderer.into_panel = True
+        renderer = BrowserRenderer(self.viewer, run.render, depth_range_of(run), into_panel=True)
         self.viewer.first_look(*scene_framing(run.scene, back=1.0, lift=0.2))
         self.renderer = renderer
 
@@ -253,8 +252,7 @@ class TrainingView:
         if self._attaching is not None:
             self._attaching.join()
         if self.renderer is not None:
-            self.renderer.into_panel = False
-            self.renderer.clear()
+            self.renderer.frames_to_panel(False)
             self.renderer.invalidate()
             self.renderer.start()  # the final model, rendered from its own thread from now on
         if self._last is not None:
