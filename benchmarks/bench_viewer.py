@@ -16,7 +16,8 @@ The claims (issue 15), all measured through headless Chromium (:mod:`pointfield.
    of its threads while the camera moves (:mod:`pointfield.viewer.training`). Each model's timed
    runs come after one untimed watched run, whose first frame compiles the renderer's kernels
    (reported, once per process); the slowdown is given over whole runs (the verdict) and over
-   each run's last four fifths of steps (what a step costs once the page has settled).
+   each run's last four fifths of steps (what a step costs once the page has settled); runs
+   beside a page that is open but not watching give the floor, what showing a viser page costs.
 
 The LAZ file is generated here (laspy): an airborne-like scan -- scan lines swept across a
 1 km x 1 km tile of smooth terrain, in acquisition order, with intensity, classification, GPS
@@ -183,9 +184,9 @@ def stream(browser, run: Path, server_render: bool, seconds: float) -> dict[str,
 # -- 3. training with --view -----------------------------------------------------------------------
 
 
-def seconds_or_dash(seconds: float) -> str:
-    """``seconds`` for a table, or a dash where nothing was measured (NaN)."""
-    return "-" if math.isnan(seconds) else f"{seconds:.2f}"
+def shown(value: float, form: str) -> str:
+    """``value`` formatted for a table with ``form`` (``"{:.2f}"``), or a dash where nothing was measured (NaN)."""
+    return "-" if math.isnan(value) else form.format(value)
 
 
 class StepClock:
@@ -207,9 +208,10 @@ class StepClock:
 def training_cost(browser, kind: str, steps: int, rounds: int, camera: str, warm_up: bool) -> dict[str, float]:
     """Seconds per training step with and without a watched page (``camera`` "still" or "moving"), interleaved.
 
-    ``warm_up``: one watched run first, untimed, whose first frame compiles the renderer's kernels
-    for rendering without gradients at the frame's size (seconds, once per process). Its first
-    frame's seconds are reported.
+    With the camera still, runs beside a page that is open but not watching (nothing sent to it)
+    give the floor: what the browser costs by merely showing a viser page. ``warm_up``: one watched
+    run first, untimed, whose first frame compiles the renderer's kernels for rendering without
+    gradients at the frame's size (seconds, once per process); its first frame is reported.
     """
     from pointfield.fields.train import train as train_field
     from pointfield.splats.train import train as train_splats
@@ -229,21 +231,23 @@ def training_cost(browser, kind: str, steps: int, rounds: int, camera: str, warm
                                       cube_size=64, progress=False)
         return metrics["training_seconds"] / metrics["steps"], clock.seconds_per_step(after=steps // 5)
 
-    per_step: dict[str, list[float]] = {"without": [], "with": []}
-    steady: dict[str, list[float]] = {"without": [], "with": []}
+    variants = ("without", "with", "page") if camera == "still" else ("without", "with")
+    per_step: dict[str, list[float]] = {variant: [] for variant in variants}
+    steady: dict[str, list[float]] = {variant: [] for variant in variants}
     shares, sharing, frames, first_frames = [], [], [], []
     compiling_frame = float("nan")
     with tempfile.TemporaryDirectory() as folder:
         for round_ in range(-1 if warm_up else 0, rounds):
-            for watched in ((True,) if round_ < 0 else (False, True) if round_ % 2 == 0 else (True, False)):
-                out = Path(folder) / f"{kind}-{round_}-{int(watched)}"
-                if not watched:
+            order = ("with",) if round_ < 0 else variants[round_ % len(variants):] + variants[:round_ % len(variants)]
+            for variant in order:
+                out = Path(folder) / f"{kind}-{round_}-{variant}"
+                if variant == "without":
                     whole, settled = train(out)
-                    per_step["without"].append(whole)
-                    steady["without"].append(settled)
+                    per_step[variant].append(whole)
+                    steady[variant].append(settled)
                     continue
                 viewer = start_viewer(port=0)
-                view = TrainingView(viewer, out)
+                view = TrainingView(viewer, out) if variant == "with" else None
                 page = open_page(browser, viewer.url)
                 moving = threading.Event()
                 if camera == "moving":
@@ -263,32 +267,43 @@ def training_cost(browser, kind: str, steps: int, rounds: int, camera: str, warm
                 mover = threading.Thread(target=orbit, daemon=True)
                 mover.start()
                 try:
-                    with view:
+                    if view is None:
                         whole, settled = train(out)
-                    drawn = view.renderer.frames() if view.renderer is not None else []
+                    else:
+                        with view:
+                            whole, settled = train(out)
                     if round_ < 0:
-                        compiling_frame = drawn[0].seconds if drawn else float("nan")
+                        compiling_frame = first_frame_seconds(view)
                         continue
-                    per_step["with"].append(whole)
-                    steady["with"].append(settled)
-                    shares.append(view.viewing_seconds / max(time.perf_counter() - view.started, 1e-9))
-                    sharing.append(view.steps_sharing / max(view.steps, 1))
-                    frames.append(view.frames_during_training)
-                    first_frames.append(drawn[0].seconds if drawn else float("nan"))
+                    per_step[variant].append(whole)
+                    steady[variant].append(settled)
+                    if view is not None:
+                        shares.append(view.viewing_seconds / max(time.perf_counter() - view.started, 1e-9))
+                        sharing.append(view.steps_sharing / max(view.steps, 1))
+                        frames.append(view.frames_during_training)
+                        first_frames.append(first_frame_seconds(view))
                 finally:
                     moving.clear()
                     mover.join()
                     page.close()
                     viewer.close()
-    without, watched = statistics.median(per_step["without"]), statistics.median(per_step["with"])
-    steady_without, steady_watched = statistics.median(steady["without"]), statistics.median(steady["with"])
-    return {"without_ms": 1000 * without, "with_ms": 1000 * watched, "slowdown": watched / without - 1,
-            "steady_without_ms": 1000 * steady_without, "steady_with_ms": 1000 * steady_watched,
-            "steady_slowdown": steady_watched / steady_without - 1,
+    ms = {variant: 1000 * statistics.median(per_step[variant]) for variant in variants}
+    steady_ms = {variant: 1000 * statistics.median(steady[variant]) for variant in variants}
+    page_only = {"page_ms": ms["page"], "page_slowdown": ms["page"] / ms["without"] - 1,
+                 "steady_page_slowdown": steady_ms["page"] / steady_ms["without"] - 1} if "page" in ms else {}
+    return {"without_ms": ms["without"], "with_ms": ms["with"], "slowdown": ms["with"] / ms["without"] - 1,
+            "steady_without_ms": steady_ms["without"], "steady_with_ms": steady_ms["with"],
+            "steady_slowdown": steady_ms["with"] / steady_ms["without"] - 1, **page_only,
             "first_frame_s": statistics.median(first_frames), "warm_up_first_frame_s": compiling_frame,
             "viewing_share": statistics.median(shares), "runs": rounds, "camera": camera,
             "threads": torch.get_num_threads(), "steps_sharing": statistics.median(sharing),
             "frames": statistics.median(frames)}
+
+
+def first_frame_seconds(view) -> float:
+    """Seconds the first frame of a watched run took (NaN when none was drawn)."""
+    drawn = view.renderer.frames() if view.renderer is not None else []
+    return drawn[0].seconds if drawn else float("nan")
 
 
 def main() -> int:
@@ -315,8 +330,8 @@ def main() -> int:
               "server renders 256 x 256 frames of lego (100 x 100 training views) into a 1024 x 1024 page, then "
               "stops, and the server renders one frame the canvas's size. Training: per-step training time "
               "(metrics' training_seconds / steps) of splats and ngp on the synthetic cube, with and without "
-              "a watched page, interleaved, after one untimed watched run; the page's camera still, then orbiting "
-              "all the time.",
+              "a watched page (and, camera still, beside a page open but not watching), interleaved, after one "
+              "untimed watched run; the page's camera still, then orbiting all the time.",
     )
     with chromium() as browser:
         if args.only in (None, "first-frame"):
@@ -355,14 +370,17 @@ def main() -> int:
                     record.figures[f"training_{kind}_{camera}"] = cost
                     rows.append([kind, camera, f"{cost['without_ms']:.1f}", f"{cost['with_ms']:.1f}",
                                  f"{100 * cost['slowdown']:+.1f} %", f"{100 * cost['steady_slowdown']:+.1f} %",
-                                 f"{100 * cost['viewing_share']:.1f} %", seconds_or_dash(cost["warm_up_first_frame_s"]),
+                                 shown(100 * cost.get("page_slowdown", math.nan), "{:+.1f} %"),
+                                 shown(100 * cost.get("steady_page_slowdown", math.nan), "{:+.1f} %"),
+                                 f"{100 * cost['viewing_share']:.1f} %", shown(cost["warm_up_first_frame_s"], "{:.2f}"),
                                  f"{cost['first_frame_s']:.2f}",
                                  f"{cost['frames']:.0f}", f"{100 * cost['steps_sharing']:.0f} %"])
                     record.verdict(f"{kind} training with --view, camera {camera}, at most "
                                    f"{100 * SLOWDOWN_TARGET:.0f} % slower per step",
                                    cost["slowdown"] <= SLOWDOWN_TARGET, f"{100 * cost['slowdown']:+.1f} %")
             record.table(["model", "browser camera", "ms per step without", "with --view", "slowdown",
-                          "slowdown after the first fifth", "time in the viewer", "compiling first frame s",
+                          "slowdown after the first fifth", "page open, not watching",
+                          "page open, after the first fifth", "time in the viewer", "compiling first frame s",
                           "first frame s", "frames sent",
                           "steps on one thread fewer"], rows,
                          title="training with one connected browser on the same 2 cores")
@@ -376,7 +394,9 @@ def main() -> int:
                         "page's start-up in the browser and the camera's first move. Before the timed runs of each "
                         "model, one watched run, untimed, compiles the renderer's kernels for rendering without "
                         "gradients in its first frame ('compiling first frame s', once per process); 'first frame s' "
-                        "is the timed runs' first frame.")
+                        "is the timed runs' first frame. 'page open, not watching' (camera still) are runs beside a viser "
+                        "page that nothing is sent to: what showing the page costs by itself, the floor under "
+                        "'slowdown'.")
     return record.finish()
 
 
