@@ -18,8 +18,9 @@ $(BIN)/.installed: pyproject.toml
 demo: $(BIN)/.installed
 	$(BIN)/pointfield demo --out demo-output
 
+# One worker per core (pytest-xdist), each folder's tests on one worker: tests/conftest.py.
 test: $(BIN)/.installed $(BIN)/.chromium
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 
 # open3d's wheel links libusb; Debian machines without it get it from apt.
 $(BIN)/.open3d: $(BIN)/.installed
