@@ -21,6 +21,7 @@ from pointfield.metrics import psnr
 from pointfield.scenes import synthetic_scene
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+SOURCE = Path(__file__).resolve().parents[1] / "src"
 
 
 def pytest_configure(config):
@@ -60,6 +61,13 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="session")
+def checkout_environment() -> dict[str, str]:
+    """The environment for a child Python process that imports this checkout's pointfield (its
+    ``src`` first on ``PYTHONPATH``), not another installed one."""
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(SOURCE), os.environ.get("PYTHONPATH")]))}
 
 
 @pytest.fixture(scope="session")

@@ -1,6 +1,5 @@
 """The README's layout section is a true map of the tree, and the package root stays trimmed."""
 
-import os
 import re
 import subprocess
 import sys
@@ -42,7 +41,7 @@ def test_the_package_root_holds_only_the_trimmed_set_of_modules():
         assert f"{name}.py" in block, f"README layout does not mention {name}.py"
 
 
-def test_importing_the_hash_grid_field_imports_nothing_that_imports_it_back():
+def test_importing_the_hash_grid_field_imports_nothing_that_imports_it_back(checkout_environment):
     # The issue's check anyone can run: python -c "import pointfield.fields.ngp" pulls in neither the
     # training code nor the splats, the two places that used to import back into the fields.
     code = (
@@ -51,6 +50,5 @@ def test_importing_the_hash_grid_field_imports_nothing_that_imports_it_back():
         " 'pointfield.training', 'pointfield.fields.run'))))"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                            env={**os.environ, "PYTHONPATH": os.pathsep.join(
-                                filter(None, [str(ROOT / "src"), os.environ.get("PYTHONPATH")]))})
+                            env=checkout_environment)
     assert result.stdout.strip() == "[]"

@@ -10,15 +10,12 @@ checked too, as is that the weights moved at all.
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 import torch
 
-import pointfield
 
 TIMEOUT = 240
 TINY = dict(shapes_per_class=4, points=64, epochs=2, batch_size=4, input_transform=False,
@@ -65,15 +62,13 @@ torch.save({"first_batch": first_batch[0], "after_first_step": after_first_step,
 
 
 @pytest.fixture(scope="module")
-def ranks(tmp_path_factory) -> list[dict]:
+def ranks(tmp_path_factory, checkout_environment) -> list[dict]:
     """What each of the two processes recorded, rank 0 first."""
     folder = tmp_path_factory.mktemp("ddp-weights")
     worker = folder / "worker.py"
     worker.write_text(f"TINY = {TINY!r}\n{WORKER}")
-    source = str(Path(pointfield.__file__).resolve().parents[1])  # this checkout, not another
     environment = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join(filter(None, [source, os.environ.get("PYTHONPATH")])),
+        **checkout_environment,
         "POINTFIELD_CACHE": str(folder / "cache"),
         "OMP_NUM_THREADS": "1",  # one thread per process: the test machine's cores are shared
     }

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import signal
 import socket
 import subprocess
@@ -26,8 +25,6 @@ from pointfield.viewer.clouds import decimate, laz_preview
 from pointfield.viewer.fields import camera_of
 from pointfield.viewer.server import start_viewer, wxyz_of
 from pointfield.viewer.sources import kind_of
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_each_path_is_known_by_its_kind(cloud_file, splat_file, scene_folder, tmp_path):
@@ -119,18 +116,17 @@ def test_a_large_laz_file_is_previewed_from_the_first_points_of_each_chunk(share
         np.testing.assert_array_equal(values, full.fields[name][rows], err_msg=name)
 
 
-def test_pointfield_view_prints_its_url_moves_off_a_taken_port_and_stops_on_ctrl_c(cloud_file):
+def test_pointfield_view_prints_its_url_moves_off_a_taken_port_and_stops_on_ctrl_c(cloud_file, checkout_environment):
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
         command = [sys.executable, "-m", "pointfield", "view", str(cloud_file), "--port", str(port)]
-        env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
         # SIGINT at its default: a child started while the test process ignores SIGINT (as some
         # earlier test's library leaves it) would inherit the ignoring, and Python then installs
         # no KeyboardInterrupt handler, so Ctrl-C could not be tested.
-        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                                   preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # noqa: PLW1509 (only a signal reset)
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                   env=checkout_environment, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # noqa: PLW1509 (only a signal reset)
         try:
             first = process.stdout.readline()
             assert first.startswith("pointfield view: open http://127.0.0.1:")
@@ -229,7 +225,7 @@ def test_the_point_size_follows_the_cloud_that_replaces_the_preview(tmp_path):
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
-def test_the_reading_worker_dies_with_a_killed_viewer():
+def test_the_reading_worker_dies_with_a_killed_viewer(checkout_environment):
     # A viewer killed while its worker sent back a large cloud left the worker blocked for ever.
     script = (
         "import os, time, multiprocessing\n"
@@ -242,8 +238,7 @@ def test_the_reading_worker_dies_with_a_killed_viewer():
         "time.sleep(0.5)\n"
         "os._exit(0)\n"  # no clean shutdown: as when the viewer is killed
     )
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
-    viewer = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=60,
+    viewer = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=checkout_environment, timeout=60,
                             check=True)
     worker = int(viewer.stdout.split()[0])
     deadline = time.monotonic() + 10
@@ -252,12 +247,12 @@ def test_the_reading_worker_dies_with_a_killed_viewer():
     assert not Path(f"/proc/{worker}").exists()
 
 
-def test_a_page_of_clouds_does_not_import_torch():
+def test_a_page_of_clouds_does_not_import_torch(checkout_environment):
     # torch takes a second or two to import: the first frame of a scan should not wait for it.
     code = ("import sys, pointfield.cli.view, pointfield.viewer.sources, pointfield.viewer.clouds; "
             "print(sorted(m for m in sys.modules if m == 'torch' or m.startswith('torch.')))")
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
-    imported = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    imported = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=checkout_environment,
+                              check=True)
     assert imported.stdout.strip() == "[]"
 
 

@@ -35,8 +35,6 @@ from pointfield.scenes.cameras import Cameras
 DEPTHS = ("expected", "median")
 """The rendered depth geometry is made from (module docstring)."""
 
-PATHS = ("dataset", "orbit", "spiral")
-
 
 def backproject(view: dict[str, torch.Tensor], cameras: Cameras, index: int, min_opacity: float = 0.5) -> PointCloud:
     """One rendered view (``rgb``, ``depth``, ``opacity``) of camera ``index`` as points (module docstring).
@@ -191,7 +189,7 @@ def cameras_of(scene_run, path: str, frames: int | None):
     """The cameras to render geometry from, on the run's device: the run's training views
     ("dataset", the first ``frames`` of them if given) or ``frames`` cameras of an orbit / spiral."""
     from pointfield.scenes.heldout import training_and_heldout
-    from pointfield.scenes.paths import path_cameras
+    from pointfield.scenes.paths import PATHS, path_cameras
 
     if path not in PATHS:
         raise PointfieldError(f"path must be one of {', '.join(PATHS)}, got {path!r}")
