@@ -27,7 +27,8 @@ SOURCE = Path(__file__).resolve().parents[1] / "src"
 def pytest_configure(config):
     workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     if workers > 1:  # oversubscribed OpenMP threads spin against each other's workers
-        torch.set_num_threads(max(1, (os.cpu_count() or 1) // workers))
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        torch.set_num_threads(max(1, cores // workers))
 
 
 @pytest.hookimpl(optionalhook=True)
