@@ -272,3 +272,23 @@ def test_the_first_frame_of_a_watched_run_does_not_set_the_pace(tmp_path):
         assert view.frame_interval(0.5, 2) == pytest.approx((0.5 + 2 * BROWSER_SECONDS_PER_FRAME) / 0.05)  # slow frames
     finally:
         viewer.close()
+
+
+def test_what_viewing_cost_is_a_share_of_the_watched_time_only(tmp_path):
+    # The page's "viewing cost" and the benchmark's "time in the viewer" read the same share; once
+    # training ends it stops counting, however long the page stays up.
+    from pointfield.viewer.training import TrainingView
+
+    viewer = start_viewer(port=0)
+    try:
+        view = TrainingView(viewer, tmp_path / "run")
+        with view:
+            time.sleep(0.05)
+            view.viewing_seconds = 0.02
+            assert 0 < view.viewing_share() < 0.4
+        finished = view.viewing_share()
+        time.sleep(0.05)
+        assert view.viewing_share() == finished
+        assert finished == pytest.approx(0.02 / (view.finished_at - view.started))
+    finally:
+        viewer.close()

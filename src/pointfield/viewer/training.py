@@ -93,10 +93,11 @@ class TrainingView:
         self.resumed.set()
         self.holding = threading.Event()
         """Set while the training loop waits in a pause."""
-        self.finished = False
         self.viewing_seconds = 0.0
         """Seconds the loop spent in this view, pauses excluded: what viewing cost training."""
         self.started = time.perf_counter()
+        self.finished_at: float | None = None
+        """``time.perf_counter()`` when :meth:`finish` ran (None while watching)."""
         self.next_render = 0.0
         self.next_status = 0.0
         self.frames_during_training = 0
@@ -221,15 +222,19 @@ class TrainingView:
 
     def _report(self, state: TrainingState, loss: float) -> None:
         heldout = next((record["psnr"] for record in reversed(state.history) if "psnr" in record), None)
-        elapsed = max(time.perf_counter() - self.started, 1e-9)
         lines = [
-            "**paused**" if self.paused else ("**finished**" if self.finished else "**training**"),
+            "**paused**" if self.paused else ("**finished**" if self.finished_at is not None else "**training**"),
             f"step {state.step:,}, loss {loss:.5f}",
             f"held-out PSNR {heldout:.2f} dB" if heldout is not None else "held-out PSNR: after the first evaluation",
-            (f"viewing cost {100 * self.viewing_seconds / elapsed:.1f} % of the time "
-             f"({self.frames_during_training} frames)"),
+            f"viewing cost {100 * self.viewing_share():.1f} % of the time ({self.frames_during_training} frames)",
         ]
         self.status.content = "  \n".join(lines)
+
+    def viewing_share(self) -> float:
+        """What viewing cost training: :attr:`viewing_seconds` as a share of the time from this
+        view's start to :meth:`finish` (to now while watching)."""
+        end = time.perf_counter() if self.finished_at is None else self.finished_at
+        return self.viewing_seconds / max(end - self.started, 1e-9)
 
     # -- around training --------------------------------------------------------------------------
 
@@ -246,7 +251,7 @@ class TrainingView:
         """Stop watching; the page goes on showing the final model (rendered on camera moves)."""
         self._watching.__exit__(None, None, None)
         self._share_threads(False)
-        self.finished = True
+        self.finished_at = time.perf_counter()
         self.resumed.set()
         self.pause_button.visible = False
         if self._attaching is not None:
