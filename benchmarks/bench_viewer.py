@@ -31,6 +31,7 @@ Run: ``make bench-viewer`` (or ``python benchmarks/bench_viewer.py``); the recor
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import statistics
@@ -39,12 +40,13 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import laspy
 import numpy as np
 import torch
-from harness import ROOT, Record
+from harness import ROOT, Record, round_order
 
 from pointfield.viewer.browser import (
     SCENE_REGION,
@@ -205,6 +207,57 @@ class StepClock:
         return (kept[-1] - kept[0]) / max(len(kept) - 1, 1)
 
 
+def train_beside_page(browser, out: Path, train: Callable[[Path], tuple[float, float]], camera: str,
+                      watched: bool) -> tuple[tuple[float, float], dict[str, float] | None]:
+    """``train(out)`` beside a fresh viser page in ``browser``: watched live (a
+    :class:`~pointfield.viewer.training.TrainingView`) or only open, its camera ``"still"`` or
+    orbiting all the time (``"moving"``). Returns what ``train`` returned and, when watched, what
+    the view saw (:func:`what_the_view_saw`: read before the page closes, which takes its tab's
+    frames with it)."""
+    from pointfield.viewer.server import start_viewer
+    from pointfield.viewer.training import TrainingView
+
+    viewer = start_viewer(port=0)
+    view = TrainingView(viewer, out) if watched else None
+    page = open_page(browser, viewer.url)
+    moving = threading.Event()
+
+    def orbit() -> None:
+        while moving.is_set():
+            for client in viewer.server.get_clients().values():
+                try:
+                    x, y, z = client.camera.position
+                    client.camera.position = (0.99 * x - 0.14 * y, 0.14 * x + 0.99 * y, z)
+                except AssertionError:  # the tab has not reported its camera yet
+                    pass
+            time.sleep(0.1)
+
+    try:
+        wait_for(lambda: viewer.server.get_clients() or None, 60, "the tab")
+        if camera == "moving":
+            moving.set()
+        mover = threading.Thread(target=orbit, daemon=True)
+        mover.start()
+        try:
+            with view if view is not None else contextlib.nullcontext():
+                result = train(out)
+        finally:
+            moving.clear()
+            mover.join()
+        return result, (what_the_view_saw(view) if view is not None else None)
+    finally:
+        page.close()
+        viewer.close()
+
+
+def what_the_view_saw(view) -> dict[str, float]:
+    """A finished watched run's viewing cost, steps on one thread fewer, frames sent, and first
+    frame's seconds (NaN when none was drawn)."""
+    drawn = view.renderer.frames() if view.renderer is not None else []
+    return {"viewing_share": view.viewing_share(), "steps_sharing": view.steps_sharing / max(view.steps, 1),
+            "frames": view.frames_during_training, "first_frame_s": drawn[0].seconds if drawn else float("nan")}
+
+
 def training_cost(browser, kind: str, steps: int, rounds: int, camera: str, warm_up: bool) -> dict[str, float]:
     """Seconds per training step with and without a watched page (``camera`` "still" or "moving"), interleaved.
 
@@ -216,8 +269,6 @@ def training_cost(browser, kind: str, steps: int, rounds: int, camera: str, warm
     from pointfield.fields.train import train as train_field
     from pointfield.splats.train import train as train_splats
     from pointfield.training.loop import watched_by
-    from pointfield.viewer.server import start_viewer
-    from pointfield.viewer.training import TrainingView
 
     def train(out: Path) -> tuple[float, float]:
         """Seconds per step over the whole run, and over its steps after the first fifth (steady state)."""
@@ -234,59 +285,25 @@ def training_cost(browser, kind: str, steps: int, rounds: int, camera: str, warm
     variants = ("without", "with", "page") if camera == "still" else ("without", "with")
     per_step: dict[str, list[float]] = {variant: [] for variant in variants}
     steady: dict[str, list[float]] = {variant: [] for variant in variants}
-    shares, sharing, frames, first_frames = [], [], [], []
+    seen: list[dict[str, float]] = []
     compiling_frame = float("nan")
     with tempfile.TemporaryDirectory() as folder:
-        for round_ in range(-1 if warm_up else 0, rounds):
-            order = ("with",) if round_ < 0 else variants[round_ % len(variants):] + variants[:round_ % len(variants)]
-            for variant in order:
-                out = Path(folder) / f"{kind}-{round_}-{variant}"
-                if variant == "without":
-                    whole, settled = train(out)
-                    per_step[variant].append(whole)
-                    steady[variant].append(settled)
-                    continue
-                viewer = start_viewer(port=0)
-                view = TrainingView(viewer, out) if variant == "with" else None
-                page = open_page(browser, viewer.url)
-                moving = threading.Event()
-                if camera == "moving":
-                    moving.set()
+        def run(variant: str, label: str):
+            out = Path(folder) / f"{kind}-{label}-{variant}"
+            if variant == "without":
+                return train(out), None
+            return train_beside_page(browser, out, train, camera, watched=variant == "with")
 
-                def orbit(viewer=viewer, moving=moving) -> None:
-                    while moving.is_set():
-                        for client in viewer.server.get_clients().values():
-                            try:
-                                x, y, z = client.camera.position
-                                client.camera.position = (0.99 * x - 0.14 * y, 0.14 * x + 0.99 * y, z)
-                            except AssertionError:
-                                pass
-                        time.sleep(0.1)
-
-                wait_for(lambda viewer=viewer: viewer.server.get_clients() or None, 60, "the tab")
-                mover = threading.Thread(target=orbit, daemon=True)
-                mover.start()
-                try:
-                    if view is None:
-                        whole, settled = train(out)
-                    else:
-                        with view:
-                            whole, settled = train(out)
-                    if round_ < 0:
-                        compiling_frame = first_frame_seconds(view)
-                        continue
-                    per_step[variant].append(whole)
-                    steady[variant].append(settled)
-                    if view is not None:
-                        shares.append(view.viewing_seconds / max(time.perf_counter() - view.started, 1e-9))
-                        sharing.append(view.steps_sharing / max(view.steps, 1))
-                        frames.append(view.frames_during_training)
-                        first_frames.append(first_frame_seconds(view))
-                finally:
-                    moving.clear()
-                    mover.join()
-                    page.close()
-                    viewer.close()
+        if warm_up:
+            _, warm = run("with", "warm-up")
+            compiling_frame = warm["first_frame_s"]
+        for round_ in range(rounds):
+            for variant in round_order(variants, round_):
+                (whole, settled), watched = run(variant, str(round_))
+                per_step[variant].append(whole)
+                steady[variant].append(settled)
+                if watched is not None:
+                    seen.append(watched)
     ms = {variant: 1000 * statistics.median(per_step[variant]) for variant in variants}
     steady_ms = {variant: 1000 * statistics.median(steady[variant]) for variant in variants}
     page_only = {"page_ms": ms["page"], "page_slowdown": ms["page"] / ms["without"] - 1,
@@ -294,16 +311,9 @@ def training_cost(browser, kind: str, steps: int, rounds: int, camera: str, warm
     return {"without_ms": ms["without"], "with_ms": ms["with"], "slowdown": ms["with"] / ms["without"] - 1,
             "steady_without_ms": steady_ms["without"], "steady_with_ms": steady_ms["with"],
             "steady_slowdown": steady_ms["with"] / steady_ms["without"] - 1, **page_only,
-            "first_frame_s": statistics.median(first_frames), "warm_up_first_frame_s": compiling_frame,
-            "viewing_share": statistics.median(shares), "runs": rounds, "camera": camera,
-            "threads": torch.get_num_threads(), "steps_sharing": statistics.median(sharing),
-            "frames": statistics.median(frames)}
-
-
-def first_frame_seconds(view) -> float:
-    """Seconds the first frame of a watched run took (NaN when none was drawn)."""
-    drawn = view.renderer.frames() if view.renderer is not None else []
-    return drawn[0].seconds if drawn else float("nan")
+            **{name: statistics.median(run[name] for run in seen) for name in seen[0]},
+            "warm_up_first_frame_s": compiling_frame, "runs": rounds, "camera": camera,
+            "threads": torch.get_num_threads()}
 
 
 def main() -> int:

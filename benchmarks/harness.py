@@ -28,7 +28,7 @@ import statistics
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -67,6 +67,12 @@ class Timing:
                 "max_seconds": max(self.seconds), "spread": self.spread, "repeats": len(self.seconds)}
 
 
+def round_order(names: Sequence[str], round_: int) -> list[str]:
+    """The order contenders run in round ``round_`` of an interleaved measurement: as given in even
+    rounds, reversed in odd ones (A B, B A, A B, ...; see :func:`interleaved`)."""
+    return list(names) if round_ % 2 == 0 else list(reversed(names))
+
+
 def interleaved(contenders: dict[str, Callable[[], Any]], repeats: int, warmup: int = 1,
                 synchronize: Callable[[], None] | None = None,
                 clock: Callable[[], float] = time.perf_counter) -> dict[str, Timing]:
@@ -87,7 +93,7 @@ def interleaved(contenders: dict[str, Callable[[], Any]], repeats: int, warmup: 
             contenders[name]()
     samples: dict[str, list[float]] = {name: [] for name in names}
     for round_ in range(repeats):
-        for name in names if round_ % 2 == 0 else reversed(names):
+        for name in round_order(names, round_):
             wait()
             started = clock()
             contenders[name]()
