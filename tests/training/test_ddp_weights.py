@@ -16,7 +16,6 @@ import sys
 import pytest
 import torch
 
-
 TIMEOUT = 240
 TINY = dict(shapes_per_class=4, points=64, epochs=2, batch_size=4, input_transform=False,
             feature_transform=False)
