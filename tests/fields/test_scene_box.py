@@ -7,7 +7,11 @@ import numpy as np
 import pytest
 import torch
 
-from pointfield.fields.scene_box import scene_bounds
+from pointfield.fields.scene_box import (
+    STEPS_PER_PIXEL,
+    scene_bounds,
+    steps_a_pixel_allows,
+)
 from pointfield.scenes import read_scene, synthetic_scene
 
 
@@ -66,7 +70,26 @@ def test_a_new_ngp_run_takes_the_papers_hash_grid_on_cuda_only(cube_scene):
     on_cuda = default_ngp_options(cube_scene, "auto", torch.device("cuda"))  # nothing is allocated
     assert set(on_cpu) == {"box", "unbounded", "max_resolution"}  # the model's own (CPU) grid
     assert on_cpu["max_resolution"] == 64  # twice the 16 px images' side, but at least 64 (scene_box.py)
-    assert on_cuda == {**on_cpu, **CUDA_OPTIONS}
+    steps = steps_a_pixel_allows(cube_scene, on_cpu["box"])  # 16 px images: far fewer than the paper's 1,024
+    assert on_cuda == {**on_cpu, **CUDA_OPTIONS, "steps_across_box": steps}
     model = InstantNGP(**{**on_cuda, "log2_table_size": 12})  # the paper's grid builds on any device
-    assert model.step_size == pytest.approx(math.sqrt(3) * 1.2 / 1024)
+    assert model.step_size == pytest.approx(math.sqrt(3) * 1.2 / steps)
     assert model.grid.resolution == 128
+
+
+def test_marching_steps_are_no_finer_than_a_quarter_of_a_pixel(cube_scene):
+    box, _ = scene_bounds(cube_scene)
+    footprint = 4.0 / float(cube_scene.cameras.fx[0])  # a pixel's width at the centre: the cameras are 4 from it
+    steps = steps_a_pixel_allows(cube_scene, box)
+    step = math.sqrt(3) * 1.2 / steps
+    assert footprint / STEPS_PER_PIXEL <= step < footprint / STEPS_PER_PIXEL * (steps + 1) / steps
+
+
+def test_lego_keeps_the_papers_1024_steps_at_full_resolution_only(shared_data):
+    from pointfield.fields.train import default_ngp_options
+
+    lego = read_scene(shared_data / "nerf" / "lego_blender")
+    full = default_ngp_options(lego, "auto", torch.device("cuda"))["steps_across_box"]
+    eighth = default_ngp_options(lego.downscaled(8), "auto", torch.device("cuda"))["steps_across_box"]
+    assert full == 1024  # a pixel at 800 x 800 spans fewer than four of them
+    assert 256 < eighth < 1024  # at 100 x 100, four steps a pixel

@@ -60,9 +60,11 @@ CUDA_OPTIONS = {"levels": 16, "features_per_level": 2, "log2_table_size": 19, "s
                 "grid_resolution": 128, "target_samples": 1 << 18}
 """The instant-ngp paper's hash grid and marching (16 levels of 2 features, a 2^19 table, 1,024
 steps across the box, a 128^3 occupancy grid, 2^18 samples a step), which ``nerf train`` uses on
-CUDA devices. A GPU pays per byte, not per random access (see :class:`InstantNGP`): on one H100,
-lego at 800 x 800 reached 35.3 dB held out after 115 s of training and 36.4 dB after 233 s with
-these, where the CPU's defaults stopped at 31.2 dB (docs/gpu.md)."""
+CUDA devices, with the steps no finer than a quarter of a pixel
+(:func:`~pointfield.fields.scene_box.steps_a_pixel_allows`). A GPU pays per byte, not per random
+access (see :class:`InstantNGP`): on one H100, lego at 800 x 800 reached 35.3 dB held out after
+115 s of training and 36.4 dB after 233 s with these, where the CPU's defaults stopped at 31.2
+dB (docs/gpu.md)."""
 
 
 class NGPField(nn.Module):

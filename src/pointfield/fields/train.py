@@ -50,7 +50,11 @@ from pointfield.fields.run import (
     identity_of,
     render_field,
 )
-from pointfield.fields.scene_box import default_max_resolution, scene_bounds
+from pointfield.fields.scene_box import (
+    default_max_resolution,
+    scene_bounds,
+    steps_a_pixel_allows,
+)
 from pointfield.metrics import psnr_from_mse
 from pointfield.scenes.heldout import (
     HeldoutRender,
@@ -98,8 +102,9 @@ def default_ngp_options(scene: Scene, scene_box, device: torch.device) -> dict[s
 
     The box and whether it is unbounded (``scene_box``, :func:`scene_bounds`), the finest
     hash-grid level (:func:`default_max_resolution`), and on CUDA the paper's hash grid
-    (:data:`~pointfield.fields.ngp.CUDA_OPTIONS`). They are written into the run's config, so a
-    run resumed on another device keeps the grid it was trained with.
+    (:data:`~pointfield.fields.ngp.CUDA_OPTIONS`), its 1,024 marching steps no finer than a
+    quarter of a pixel (:func:`steps_a_pixel_allows`). They are written into the run's config,
+    so a run resumed on another device keeps the grid it was trained with.
     """
     try:
         box, unbounded = scene_bounds(scene, scene_box)
@@ -108,6 +113,7 @@ def default_ngp_options(scene: Scene, scene_box, device: torch.device) -> dict[s
     chosen = {"box": box, "unbounded": unbounded, "max_resolution": default_max_resolution(scene, unbounded)}
     if device.type == "cuda":
         chosen.update(CUDA_OPTIONS)
+        chosen["steps_across_box"] = min(CUDA_OPTIONS["steps_across_box"], steps_a_pixel_allows(scene, box))
     return chosen
 
 
