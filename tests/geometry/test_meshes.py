@@ -59,6 +59,16 @@ def test_only_blocks_near_the_surface_are_stored_and_view_order_does_not_matter(
     np.testing.assert_allclose(forward_tsdf, reversed_tsdf, atol=1e-5)
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_fusion_on_cuda_gives_the_cpus_grid(fused_cube):
+    scene = synthetic_scene("cube", views=24, size=64)
+    on_cuda = fuse(TSDFVolume.create([-1, -1, -1], [1, 1, 1], 64, device="cuda"), cube_views(scene), scene.cameras)
+    cpu_tsdf, cpu_observed = fused_cube.dense()
+    cuda_tsdf, cuda_observed = on_cuda.dense()
+    np.testing.assert_array_equal(cpu_observed, cuda_observed)
+    np.testing.assert_allclose(cpu_tsdf, cuda_tsdf, atol=1e-5)
+
+
 def test_a_floater_seen_by_one_view_is_carved_by_the_others():
     scene = synthetic_scene("cube", views=24, size=64)
     views = cube_views(scene)
