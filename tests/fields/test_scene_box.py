@@ -2,12 +2,14 @@
 
 import dataclasses
 import math
+import types
 
 import numpy as np
 import pytest
 import torch
 
 from pointfield.fields.scene_box import (
+    NO_STEP_LIMIT,
     STEPS_PER_PIXEL,
     scene_bounds,
     steps_a_pixel_allows,
@@ -83,6 +85,12 @@ def test_marching_steps_are_no_finer_than_a_quarter_of_a_pixel(cube_scene):
     steps = steps_a_pixel_allows(cube_scene, box)
     step = math.sqrt(3) * 1.2 / steps
     assert footprint / STEPS_PER_PIXEL <= step < footprint / STEPS_PER_PIXEL * (steps + 1) / steps
+
+
+def test_cameras_at_the_boxs_centre_set_no_limit_on_the_steps(cube_scene):
+    one_camera = types.SimpleNamespace(cameras=cube_scene.cameras[[0]])
+    centre = cube_scene.cameras.camera_to_world[0, :3, 3].numpy()
+    assert steps_a_pixel_allows(one_camera, [centre - 1, centre + 1]) == NO_STEP_LIMIT
 
 
 def test_lego_keeps_the_papers_1024_steps_at_full_resolution_only(shared_data):

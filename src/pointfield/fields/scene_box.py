@@ -24,14 +24,16 @@ def default_max_resolution(scene, unbounded: bool) -> int:
 
 STEPS_PER_PIXEL = 4
 """The most marching steps one pixel's footprint at the box's centre may span (see :func:`steps_a_pixel_allows`)."""
+NO_STEP_LIMIT = 1 << 30
+"""What :func:`steps_a_pixel_allows` returns where a pixel sees no width at the box's centre."""
 
 
 def steps_a_pixel_allows(scene, box) -> int:
     """The most steps across ``box``'s diagonal that keep a step no finer than a quarter of a pixel.
 
     A pixel's footprint is, over the cameras, the median of the distance to the box's centre
-    over the focal length. Steps far finer than that resolve nothing the images show, and they also stall
-    training: on the textured cube at 100 x 100 (a tight box, so the paper's 1,024 steps are
+    over the focal length. Steps far finer than that resolve nothing the images show, and they
+    also stall training: on the textured cube at 100 x 100 (a tight box, so the paper's 1,024 steps are
     a fourteenth of a pixel), the hash-grid field stayed a semi-transparent fog (held-out
     22.3 dB after 400 steps on the CPU, 21.5 dB after 18 s on an H200) where 256 steps
     (about a quarter of a pixel) reached 30.3 and 32.9 dB; lego at 100 x 100 (a loose box, a
@@ -43,6 +45,8 @@ def steps_a_pixel_allows(scene, box) -> int:
     focal = np.maximum(scene.cameras.fx.double().cpu().numpy(), scene.cameras.fy.double().cpu().numpy())
     footprint = float(np.median(distance / focal))
     diagonal = float(np.linalg.norm(box[1] - box[0]))
+    if not footprint * NO_STEP_LIMIT > STEPS_PER_PIXEL * diagonal:  # the cameras sit at the centre
+        return NO_STEP_LIMIT
     return max(1, int(STEPS_PER_PIXEL * diagonal / footprint))
 
 
