@@ -11,7 +11,14 @@ The claims (issue 19), on NeRF-synthetic lego at 800 x 800 (``--downscale 1 --ho
 - PointNet and PointNet++ training samples per second on the GPU against the CPU, same run;
 - the splat rasterizer's compositing block size (``max_block_elements``): a training step and a
   render of 100,000 random splats at 800 x 800 for blocks of 2^18 to 2^24 elements, the figures
-  behind the GPU default (:data:`pointfield.splats.rasterizer.GPU_BLOCK_ELEMENTS`).
+  behind the GPU default (:data:`pointfield.splats.rasterizer.GPU_BLOCK_ELEMENTS`);
+- geometry (issue 14): TSDF fusion of the cube's exact depth maps (24 views at 100 x 100 and 800
+  x 800, 256^3 over [-1, 1]^3) on the GPU against the same machine's CPU, interleaved: depth
+  maps per second and whether the two grids agree; then ``scene make textured-cube`` (100 views
+  of 100 x 100), the hash-grid field trained with ``nerf train``'s defaults for the device for
+  ``--geometry-seconds``, its mesh (256^3) and cloud exported on the GPU, timed, and scored
+  against the true surface as ``bench_geometry.py`` scores them (Chamfer and F-score at 1 % of
+  the diagonal; the goals 0.5 % and 0.9).
 
 PSNR at a time is the last evaluation at or before that many training seconds (evaluations
 excluded, :func:`harness.training_curve`, the clock of every other benchmark); held-out PSNR is
@@ -19,7 +26,8 @@ the mean of per-view PSNR over all ten held-out views. A time limit shorter than
 that mark out; a run that finished its steps sooner keeps its final figure.
 
 Run: ``make bench-gpu`` (= ``python benchmarks/bench_gpu.py``), or e.g. ``--ngp-seconds 120
---splat-seconds 120`` for a shorter lease. ``--device cpu --downscale 8`` smoke-tests it without
+--splat-seconds 120`` for a shorter lease (the geometry part alone: ``--parts geometry``, about
+two minutes with its default 60 s of training). ``--device cpu --downscale 8`` smoke-tests it without
 a GPU. The record goes to ``benchmarks/records/gpu.json``.
 """
 
@@ -163,13 +171,83 @@ def rasterizer_blocks(device: torch.device, splats: int, size: int, repeats: int
     return rows
 
 
+def tsdf_devices(device: torch.device, repeats: int) -> list[dict]:
+    """Depth maps fused per second on ``device`` and on the CPU, and whether their grids agree."""
+    from pointfield.scenes import synthetic_scene
+
+    rows = []
+    for size in (100, 800):
+        scene = synthetic_scene("cube", views=24, size=size)
+        maps = [(torch.from_numpy(scene.depth(i)), torch.from_numpy(scene.image(i))) for i in range(len(scene))]
+        rows.append({"size": size, "views": len(maps), **fusion_on_both(maps, scene.cameras, device, repeats)})
+        print(f"tsdf {size} px: {rows[-1]}", flush=True)
+    return rows
+
+
+def fusion_on_both(maps, cameras, device: torch.device, repeats: int) -> dict:
+    """``maps`` fused at 256^3 on the CPU and on ``device``, interleaved: maps per second ("cpu",
+    "device"), and how far the two grids differ."""
+    import numpy as np
+
+    from pointfield.geometry.tsdf import TSDFVolume, fuse
+
+    volumes = {}
+    places = {"cpu": torch.device("cpu"), "device": device}
+
+    def fusion(name):
+        def run():
+            volumes[name] = fuse(TSDFVolume.create([-1.0] * 3, [1.0] * 3, 256, device=places[name]), maps, cameras)
+        return run
+
+    timings = interleaved({name: fusion(name) for name in places}, repeats,
+                          synchronize=torch.cuda.synchronize if device.type == "cuda" else None)
+    (cpu_tsdf, cpu_observed), (tsdf, observed) = volumes["cpu"].dense(), volumes["device"].dense()
+    both = cpu_observed & observed
+    return {"maps_per_second": {name: len(maps) / timing.median for name, timing in timings.items()},
+            "observed_differ": int((cpu_observed != observed).sum()),
+            "largest_tsdf_difference": float(np.abs(cpu_tsdf - tsdf)[both].max()) if both.any() else float("nan")}
+
+
+def cube_geometry(args, out: Path) -> dict:
+    """The textured cube's hash-grid field trained on the device; its mesh and cloud, timed and scored."""
+    from bench_geometry import THRESHOLD, cube_truth
+
+    import pointfield
+    from pointfield.clouds.formats.registry import read
+    from pointfield.fields.train import train
+    from pointfield.geometry import export_cloud, export_mesh
+    from pointfield.geometry.compare import sample_mesh, surface_scores
+    from pointfield.scenes.synthetic import make_scene
+
+    data = make_scene("textured-cube", out / "textured-cube", views=100, size=100, overwrite=True)
+    metrics = train(str(data), model="ngp", out=out / "ngp", steps=100_000, max_time=args.geometry_seconds,
+                    device=args.device, progress=False)
+    run = pointfield.load_run(out / "ngp", args.device)
+    truth = cube_truth(1_000_000)
+    diagonal = float(torch.linalg.norm(torch.from_numpy(truth.max(0) - truth.min(0))))
+    result = {"psnr": round(metrics["psnr"], 2), "opacity_error": round(metrics["opacity_error"], 4),
+              "steps": metrics["steps"], "steps_across_box": run.config["model_options"].get("steps_across_box")}
+    for output, export in (("mesh", lambda path: export_mesh(run, path, resolution=256, progress=False)),
+                           ("cloud", lambda path: export_cloud(run, path, progress=False))):
+        path = out / f"ngp-{output}.ply"
+        started = time.perf_counter()
+        export(path)
+        seconds = time.perf_counter() - started
+        points = sample_mesh(read(path), 500_000) if output == "mesh" else read(path).points
+        scores = surface_scores(points, truth, THRESHOLD * diagonal, unit=diagonal)
+        result[output] = {"seconds": round(seconds, 2), "chamfer_relative": scores["chamfer_relative"],
+                          "fscore": scores["fscore"]}
+        print(f"cube {output}: {result[output]}", flush=True)
+    return result
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", type=Path, default=LEGO, help=f"lego, Blender format (default {LEGO})")
     parser.add_argument("--device", default="cuda", help="the GPU to measure (default cuda)")
     parser.add_argument("--downscale", type=int, default=1, help="1 = 800 x 800 (default)")
-    parser.add_argument("--parts", nargs="+", choices=("ngp", "splat", "pointnet", "blocks"),
-                        default=["ngp", "splat", "pointnet", "blocks"])
+    parser.add_argument("--parts", nargs="+", choices=("ngp", "splat", "pointnet", "blocks", "geometry"),
+                        default=["ngp", "splat", "pointnet", "blocks", "geometry"])
     parser.add_argument("--out", type=Path, default=Path("bench-output/gpu"), help="run folders")
     parser.add_argument("--ngp-seconds", type=float, default=300.0)
     parser.add_argument("--ngp-steps", type=int, default=20_000, help="the learning rate decays over these")
@@ -182,6 +260,7 @@ def main() -> int:
     parser.add_argument("--splat-eval-every", type=int, default=1000)
     parser.add_argument("--renders", type=int, default=10, help="renders timed per model (median)")
     parser.add_argument("--pointnet-batch", type=int, default=32)
+    parser.add_argument("--geometry-seconds", type=float, default=60.0, help="the textured cube's training")
     args = parser.parse_args()
     if {"ngp", "splat"} & set(args.parts) and not (args.scene / "transforms_train.json").is_file():
         raise SystemExit(f"lego scene not found at {args.scene}: pass --scene or put ../shared/data beside the repo")
@@ -237,6 +316,31 @@ def main() -> int:
                      [[f"{row['mode']} at {size} x {size}", f"2^{row['block'].bit_length() - 1}",
                        f"{row['seconds'] * 1000:.1f} ms",
                        "-" if row["peak_gib"] is None else f"{row['peak_gib']:.2f} GiB"] for row in rows])
+    if "geometry" in args.parts:
+        rows = tsdf_devices(device, repeats=3)
+        results["tsdf"] = rows
+        record.table(["TSDF fusion, the cube's exact depth, 256^3", f"{device.type} maps/s", "cpu maps/s", "ratio",
+                      "voxels observed by one only", "largest TSDF difference"],
+                     [[f"{row['views']} views of {row['size']} x {row['size']}",
+                       f"{row['maps_per_second']['device']:.1f}", f"{row['maps_per_second']['cpu']:.1f}",
+                       f"{row['maps_per_second']['device'] / row['maps_per_second']['cpu']:.1f}x",
+                       f"{row['observed_differ']:,}", f"{row['largest_tsdf_difference']:.2g}"] for row in rows])
+        cube = cube_geometry(args, args.out / "geometry")
+        results["cube"] = cube
+        record.table(["textured cube, ngp", "held-out PSNR", "opacity error", "steps", "marching steps",
+                      "output", "export s", "Chamfer %", "F-score"],
+                     [["", f"{cube['psnr']:.2f} dB", f"{cube['opacity_error']:.4f}", f"{cube['steps']:,}",
+                       str(cube["steps_across_box"]), output, f"{cube[output]['seconds']:.1f}",
+                       f"{100 * cube[output]['chamfer_relative']:.3f}", f"{cube[output]['fscore']:.3f}"]
+                      for output in ("mesh", "cloud")])
+        from bench_geometry import GOAL_CHAMFER, GOAL_FSCORE
+
+        for output in ("mesh", "cloud"):
+            scores = cube[output]
+            record.verdict(f"textured cube ngp {output} on {device.type}: Chamfer <= {100 * GOAL_CHAMFER:.1f} % of "
+                           f"the diagonal, F-score >= {GOAL_FSCORE}",
+                           scores["chamfer_relative"] <= GOAL_CHAMFER and scores["fscore"] >= GOAL_FSCORE,
+                           f"{100 * scores['chamfer_relative']:.3f} %, F {scores['fscore']:.3f}")
     record.figures.update({"runs": str(args.out), "results": results})
     return record.finish()
 
