@@ -33,11 +33,11 @@ def steps_a_pixel_allows(scene, box) -> int:
 
     A pixel's footprint is, over the cameras, the median of the distance to the box's centre
     over the focal length. Steps far finer than that resolve nothing the images show, and they
-    also stall training: on the textured cube at 100 x 100 (a tight box, so the paper's 1,024 steps are
-    a fourteenth of a pixel), the hash-grid field stayed a semi-transparent fog (held-out
-    22.3 dB after 400 steps on the CPU, 21.5 dB after 18 s on an H200) where 256 steps
-    (about a quarter of a pixel) reached 30.3 and 32.9 dB; lego at 100 x 100 (a loose box, a
-    fifth of a pixel) trains with 1,024 (docs/gpu.md).
+    also stall training: on the textured cube at 100 x 100 (a tight box, so the paper's 1,024
+    steps are a fourteenth of a pixel), the hash-grid field stayed a semi-transparent fog
+    (held-out 22.3 dB after 400 steps on the CPU, 21.5 dB after 18 s on an H200) where 256
+    steps (about a quarter of a pixel) reached 30.3 and 32.9 dB; lego at 100 x 100 (a loose
+    box, a fifth of a pixel) trains with 1,024 (docs/gpu.md).
     """
     box = np.asarray(box, dtype=np.float64).reshape(2, 3)
     centres = scene.cameras.camera_to_world[:, :3, 3].double().cpu().numpy()
