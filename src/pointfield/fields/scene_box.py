@@ -9,6 +9,8 @@ read duck-typed (``cameras``, ``splits``, ``alpha``, ``aabb``, ``points``, ``nea
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -40,14 +42,12 @@ def steps_a_pixel_allows(scene, box) -> int:
     box, a fifth of a pixel) trains with 1,024 (docs/gpu.md).
     """
     box = np.asarray(box, dtype=np.float64).reshape(2, 3)
-    centres = scene.cameras.camera_to_world[:, :3, 3].double().cpu().numpy()
-    distance = np.linalg.norm(centres - box.mean(axis=0), axis=1)
-    focal = np.maximum(scene.cameras.fx.double().cpu().numpy(), scene.cameras.fy.double().cpu().numpy())
+    cameras = scene.cameras
+    distance = np.linalg.norm(cameras.centers.double().cpu().numpy() - box.mean(axis=0), axis=1)
+    focal = np.maximum(cameras.fx.double().cpu().numpy(), cameras.fy.double().cpu().numpy())
     footprint = float(np.median(distance / focal))
-    diagonal = float(np.linalg.norm(box[1] - box[0]))
-    if not footprint * NO_STEP_LIMIT > STEPS_PER_PIXEL * diagonal:  # the cameras sit at the centre
-        return NO_STEP_LIMIT
-    return max(1, int(STEPS_PER_PIXEL * diagonal / footprint))
+    steps = STEPS_PER_PIXEL * float(np.linalg.norm(box[1] - box[0])) / footprint if footprint > 0 else math.inf
+    return max(1, int(min(steps, NO_STEP_LIMIT)))
 
 
 def scene_bounds(scene, scene_box="auto") -> tuple[list[list[float]], bool]:
