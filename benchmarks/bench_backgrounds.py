@@ -15,8 +15,8 @@ by about as much as the claim allows (docs/geometry.md); seeds at equal steps te
 objective from that noise.
 
 Run: ``make bench-backgrounds`` (= ``python benchmarks/bench_backgrounds.py``; five seeds of
-1,200 steps, about 80 minutes on 2 cores); the record goes to
-``benchmarks/records/backgrounds.json``.
+1,200 steps, ten runs, each 370 to 560 s on this 2-core machine when it ran them one-off, so
+60 to 95 minutes); the record goes to ``benchmarks/records/backgrounds.json``.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import statistics
 import sys
 from pathlib import Path
 
-from harness import Record
+from harness import Record, round_order
 
 LEGO = Path(__file__).resolve().parents[2] / "shared" / "data" / "nerf" / "lego_blender"
 GOAL_DB = 0.2
@@ -56,9 +56,8 @@ def main() -> int:
                           "alpha| over them.")
     rows, differences = [], []
     for position, seed in enumerate(args.seeds):
-        order = list(VARIANTS) if position % 2 == 0 else list(reversed(VARIANTS))
         metrics = {variant: train_lego(args.out / f"seed-{seed}-{variant.replace(' ', '-')}", args.steps, seed,
-                                       VARIANTS[variant]) for variant in order}
+                                       VARIANTS[variant]) for variant in round_order(list(VARIANTS), position)}
         difference = metrics["random backgrounds"]["psnr"] - metrics["fixed background"]["psnr"]
         differences.append(difference)
         record.figures[f"seed {seed}"] = {variant: {key: metrics[variant][key] for key in ("psnr", "opacity_error", "steps")}
