@@ -63,6 +63,7 @@ LEGO = Path(__file__).resolve().parents[2] / "shared" / "data" / "nerf" / "lego_
 GOAL_CHAMFER = 0.005
 GOAL_FSCORE = 0.9
 THRESHOLD = 0.01
+"""F-score threshold, as a fraction of the true bounding-box diagonal."""
 SPLAT_GEOMETRY = {**GEOMETRY_WEIGHTS, "antialiased": True, "screen_dilation": 0.1}
 """How splats train for geometry: opaque discs in one layer (the geometry terms), outlines where
 they are (antialiased with Mip-Splatting's 0.1 px^2 filter: in classic mode a surface of small
@@ -71,7 +72,6 @@ SPLAT_STEPS = DEFAULT_STEPS
 """Splats train the default schedule (densification, learning-rate decay, SH degrees), which
 ends within the time limit here; the first tenth of a 30,000-step one could stop just after an
 opacity reset (all opacities set to 0.01 at step 3,000), and one run on the cube did."""
-"""F-score threshold, as a fraction of the true bounding-box diagonal."""
 
 
 def cube_truth(count: int, seed: int = 0) -> np.ndarray:
@@ -86,6 +86,14 @@ def cube_truth(count: int, seed: int = 0) -> np.ndarray:
 
 
 TRUTHS = {"textured-cube": cube_truth, "cube": cube_truth}
+
+
+def truth_scorer(name: str, count: int) -> Callable[[np.ndarray], dict]:
+    """``points -> scores`` against ``count`` samples of scene ``name``'s true surface: distances
+    in fractions of its bounding-box diagonal, precision and recall at :data:`THRESHOLD` of it."""
+    truth = TRUTHS[name](count)
+    diagonal = float(np.linalg.norm(truth.max(axis=0) - truth.min(axis=0)))
+    return lambda points: surface_scores(points, truth, THRESHOLD * diagonal, unit=diagonal)
 
 
 def open3d_mesh(views, cameras, low, high, resolution: int) -> np.ndarray:
@@ -223,14 +231,8 @@ def main() -> int:
     for name in args.scenes:
         data = make_scene(name, args.out / f"{name}-data", views=args.views, size=args.size, overwrite=True)
         scene = open_scene(str(data), 1, None, None)
-        truth = TRUTHS[name](args.truth_points)
-        low, high = truth.min(axis=0), truth.max(axis=0)
-        diagonal = float(np.linalg.norm(high - low))
-        threshold = THRESHOLD * diagonal
+        scored = truth_scorer(name, args.truth_points)
         training, _ = training_and_heldout(scene)
-
-        def scored(points, truth=truth, threshold=threshold, diagonal=diagonal):
-            return surface_scores(points, truth, threshold, unit=diagonal)
 
         # The ceiling: the scene's own depth maps of the same training views, fused the same way.
         volume = TSDFVolume.create(*scene.aabb, args.resolution)  # the scene's box, as the models have

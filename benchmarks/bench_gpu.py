@@ -172,59 +172,57 @@ def rasterizer_blocks(device: torch.device, splats: int, size: int, repeats: int
 
 
 def tsdf_devices(device: torch.device, repeats: int) -> list[dict]:
-    """Depth maps fused per second on ``device`` and on the CPU, and whether their grids agree."""
-    from pointfield.scenes import synthetic_scene
+    """Depth maps fused per second on ``device`` and on the CPU, and whether their grids agree:
+    ``bench_tsdf.py``'s cube views and pointfield fusion, on both devices."""
+    from bench_tsdf import cube_views
 
     rows = []
     for size in (100, 800):
-        scene = synthetic_scene("cube", views=24, size=size)
-        maps = [(torch.from_numpy(scene.depth(i)), torch.from_numpy(scene.image(i))) for i in range(len(scene))]
-        rows.append({"size": size, "views": len(maps), **fusion_on_both(maps, scene.cameras, device, repeats)})
+        cameras, depths, colours = cube_views(24, size)
+        rows.append({"size": size, "views": len(depths), **fusion_on_both(cameras, depths, colours, device, repeats)})
         print(f"tsdf {size} px: {rows[-1]}", flush=True)
     return rows
 
 
-def fusion_on_both(maps, cameras, device: torch.device, repeats: int) -> dict:
-    """``maps`` fused at 256^3 on the CPU and on ``device``, interleaved: maps per second ("cpu",
+def fusion_on_both(cameras, depths, colours, device: torch.device, repeats: int) -> dict:
+    """The maps fused at 256^3 on the CPU and on ``device``, interleaved: maps per second ("cpu",
     "device"), and how far the two grids differ."""
     import numpy as np
-
-    from pointfield.geometry.tsdf import TSDFVolume, fuse
+    from bench_tsdf import fuse_pointfield
 
     volumes = {}
     places = {"cpu": torch.device("cpu"), "device": device}
 
     def fusion(name):
         def run():
-            volumes[name] = fuse(TSDFVolume.create([-1.0] * 3, [1.0] * 3, 256, device=places[name]), maps, cameras)
+            volumes[name] = fuse_pointfield(cameras, depths, colours, 256, device=places[name])
         return run
 
     timings = interleaved({name: fusion(name) for name in places}, repeats,
                           synchronize=torch.cuda.synchronize if device.type == "cuda" else None)
     (cpu_tsdf, cpu_observed), (tsdf, observed) = volumes["cpu"].dense(), volumes["device"].dense()
     both = cpu_observed & observed
-    return {"maps_per_second": {name: len(maps) / timing.median for name, timing in timings.items()},
+    return {"maps_per_second": {name: len(depths) / timing.median for name, timing in timings.items()},
             "observed_differ": int((cpu_observed != observed).sum()),
             "largest_tsdf_difference": float(np.abs(cpu_tsdf - tsdf)[both].max()) if both.any() else float("nan")}
 
 
 def cube_geometry(args, out: Path) -> dict:
     """The textured cube's hash-grid field trained on the device; its mesh and cloud, timed and scored."""
-    from bench_geometry import THRESHOLD, cube_truth
+    from bench_geometry import truth_scorer
 
     import pointfield
     from pointfield.clouds.formats.registry import read
     from pointfield.fields.train import train
     from pointfield.geometry import export_cloud, export_mesh
-    from pointfield.geometry.compare import sample_mesh, surface_scores
+    from pointfield.geometry.compare import sample_mesh
     from pointfield.scenes.synthetic import make_scene
 
     data = make_scene("textured-cube", out / "textured-cube", views=100, size=100, overwrite=True)
     metrics = train(str(data), model="ngp", out=out / "ngp", steps=100_000, max_time=args.geometry_seconds,
                     device=args.device, progress=False)
     run = pointfield.load_run(out / "ngp", args.device)
-    truth = cube_truth(1_000_000)
-    diagonal = float(torch.linalg.norm(torch.from_numpy(truth.max(0) - truth.min(0))))
+    scored = truth_scorer("textured-cube", 1_000_000)
     result = {"psnr": round(metrics["psnr"], 2), "opacity_error": round(metrics["opacity_error"], 4),
               "steps": metrics["steps"], "steps_across_box": run.config["model_options"].get("steps_across_box")}
     for output, export in (("mesh", lambda path: export_mesh(run, path, resolution=256, progress=False)),
@@ -234,7 +232,7 @@ def cube_geometry(args, out: Path) -> dict:
         export(path)
         seconds = time.perf_counter() - started
         points = sample_mesh(read(path), 500_000) if output == "mesh" else read(path).points
-        scores = surface_scores(points, truth, THRESHOLD * diagonal, unit=diagonal)
+        scores = scored(points)
         result[output] = {"seconds": round(seconds, 2), "chamfer_relative": scores["chamfer_relative"],
                           "fscore": scores["fscore"]}
         print(f"cube {output}: {result[output]}", flush=True)

@@ -39,10 +39,10 @@ def cube_views(views: int, size: int):
     return scene.cameras, depths, colours
 
 
-def fuse_pointfield(cameras, depths, colours, resolution: int):
+def fuse_pointfield(cameras, depths, colours, resolution: int, device="cpu"):
     from pointfield.geometry.tsdf import TSDFVolume, fuse
 
-    volume = TSDFVolume.create(*BOX, resolution, truncation_voxels=TRUNCATION_VOXELS)
+    volume = TSDFVolume.create(*BOX, resolution, truncation_voxels=TRUNCATION_VOXELS, device=device)
     return fuse(volume, [(torch.from_numpy(d), torch.from_numpy(c)) for d, c in zip(depths, colours)], cameras)
 
 
