@@ -25,7 +25,8 @@ splats with the geometry recipe (``SPLAT_GEOMETRY``: the geometry terms of
 :mod:`pointfield.splats.loss` and the rasterizer's antialiased mode with Mip-Splatting's 0.1 px^2
 dilation, which the cube's splats are trained with), with the alpha loss alone (the default),
 and with colour only; each trained for at most ``--lego-time`` seconds (the splats as above),
-held-out PSNR and opacity error side by side (opacity training must not cost PSNR); then the
+held-out PSNR and opacity error side by side (opacity training must not cost PSNR: the splats'
+verdict is here, the field's is ``bench_backgrounds.py``'s over seeds); then the
 mesh of the default ngp run exported at 256^3, timed end to end (open the run, render the 90
 training views, fuse, mesh, write) against the issue's 60 s.
 
@@ -179,13 +180,17 @@ def lego_part(args, record: Record) -> None:
     record.table(["scene", "model", "training", "held-out PSNR", "SSIM", "opacity error", "steps",
                   "training s"], rows, title="Opacity training and the distortion loss on lego at 100 x 100, equal training time "
                                             "(opacity error: mean |rendered opacity - alpha| over held-out views)")
-    for model, ours, theirs in (("ngp", "random backgrounds", "fixed background"),
-                                ("splat", "alpha loss 0.1 only", "colour only")):
-        with_it, without = record.figures[f"lego/{model}/{ours}"], record.figures[f"lego/{model}/{theirs}"]
-        record.verdict(f"lego {model}: default opacity training costs no held-out PSNR (within 0.2 dB)",
-                       with_it["psnr"] >= without["psnr"] - 0.2,
-                       f"{with_it['psnr']:.2f} against {without['psnr']:.2f} dB; opacity error "
-                       f"{with_it['opacity_error']:.4f} against {without['opacity_error']:.4f}")
+    with_it, without = record.figures["lego/splat/alpha loss 0.1 only"], record.figures["lego/splat/colour only"]
+    record.verdict("lego splat: default opacity training costs no held-out PSNR (within 0.2 dB)",
+                   with_it["psnr"] >= without["psnr"] - 0.2,
+                   f"{with_it['psnr']:.2f} against {without['psnr']:.2f} dB; opacity error "
+                   f"{with_it['opacity_error']:.4f} against {without['opacity_error']:.4f}")
+    # One 300 s run of each ngp variant differs from the next by about as much as the 0.2 dB
+    # allowed (docs/geometry.md), so the ngp claim's verdict is bench_backgrounds.py's, over seeds.
+    with_it, without = record.figures["lego/ngp/random backgrounds"], record.figures["lego/ngp/fixed background"]
+    record.note(f"lego ngp: random backgrounds (the default) {with_it['psnr']:.2f} dB against the fixed background's "
+                f"{without['psnr']:.2f} dB in this one run; whether the default costs PSNR is make bench-backgrounds' "
+                "verdict, over seeds at equal steps.")
     with_it, without = (record.figures["lego/ngp/random backgrounds"],
                         record.figures["lego/ngp/random backgrounds, no distortion loss"])
     record.verdict("lego ngp: the default distortion loss costs no held-out PSNR (within 0.2 dB)",
