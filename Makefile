@@ -85,7 +85,7 @@ bench-tsdf: $(BIN)/.open3d
 bench-geometry: $(BIN)/.open3d
 	$(BIN)/python benchmarks/bench_geometry.py
 
-# Lego's PSNR with and without opacity training, five seeds of equal steps (60 to 95 minutes)
+# Lego's PSNR with and without opacity training, five seeds of equal steps (68 minutes for the first record)
 bench-backgrounds: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_backgrounds.py
 

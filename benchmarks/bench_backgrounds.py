@@ -15,8 +15,8 @@ by about as much as the claim allows (docs/geometry.md); seeds at equal steps te
 objective from that noise.
 
 Run: ``make bench-backgrounds`` (= ``python benchmarks/bench_backgrounds.py``; five seeds of
-1,200 steps, ten runs, each 370 to 560 s on this 2-core machine when it ran them one-off, so
-60 to 95 minutes); the record goes to ``benchmarks/records/backgrounds.json``.
+1,200 steps, ten runs: 68 minutes on this 2-core machine for the first record, at 49e1189); the
+record goes to ``benchmarks/records/backgrounds.json``.
 """
 
 from __future__ import annotations
