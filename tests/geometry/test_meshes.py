@@ -30,13 +30,29 @@ def cube_views(scene):
     return [(torch.from_numpy(scene.depth(i)), torch.from_numpy(scene.image(i))) for i in range(len(scene))]
 
 
+def signed_distance_to_cube(vertices: np.ndarray) -> np.ndarray:
+    """Of points near the surface of the cube [-0.5, 0.5]^3: positive outside."""
+    return np.abs(vertices).max(axis=1) - 0.5
+
+
+def away_from_edges(vertices: np.ndarray, margin: float) -> np.ndarray:
+    """Points on a face of that cube farther than ``margin`` from its edges."""
+    return np.sort(np.abs(vertices), axis=1)[:, 1] < 0.5 - margin
+
+
 def test_fusing_the_cubes_exact_depth_gives_the_cube(fused_cube):
     mesh = mesh_from_volume(fused_cube)
     vertices = mesh.points
-    # vertices on the cube's surface to a fraction of a voxel, and all six faces covered
-    distance_to_surface = np.abs(np.abs(vertices).max(axis=1) - 0.5)
-    assert np.median(distance_to_surface) < fused_cube.voxel / 4
-    assert np.percentile(distance_to_surface, 99) < 1.5 * fused_cube.voxel
+    # On the faces' inner parts, vertices lie on the cube's surface to a fraction of a voxel. Within
+    # a truncation distance of an edge, a face's plane extends past the edge, and views that see it
+    # at a grazing angle count voxels just outside the other face as behind it: edges round outwards
+    # by up to about two voxels when, as here, the truncation is an eighth of the cube's side.
+    distance = np.abs(signed_distance_to_cube(vertices))
+    inner = away_from_edges(vertices, fused_cube.truncation)
+    assert np.median(distance[inner]) < fused_cube.voxel / 4
+    assert np.percentile(distance[inner], 99) < fused_cube.voxel
+    assert distance.max() < 3 * fused_cube.voxel
+    # all six faces covered
     faces_covered = {(axis, sign) for axis, sign in zip(np.abs(vertices).argmax(1), np.sign(
         vertices[np.arange(len(vertices)), np.abs(vertices).argmax(1)]))}
     assert len(faces_covered) == 6
@@ -59,6 +75,19 @@ def test_only_blocks_near_the_surface_are_stored_and_view_order_does_not_matter(
     np.testing.assert_allclose(forward_tsdf, reversed_tsdf, atol=1e-5)
 
 
+def test_views_coarser_than_the_grid_do_not_shrink_the_cube():
+    # Pixels wider than voxels, as in bench_geometry (100 px views, 256^3): a view that sees a face
+    # at a grazing angle reads, along its axis, several times a voxel's distance to the surface, so
+    # with projective distances the zero level sank about half a voxel into the cube (-0.47 voxel
+    # here). The distance to the plane each pixel saw reads the same from every angle (-0.23).
+    scene = synthetic_scene("cube", views=40, size=40)
+    volume = fuse(TSDFVolume.create([-1, -1, -1], [1, 1, 1], 160), cube_views(scene), scene.cameras)
+    vertices = mesh_from_volume(volume).points
+    signed = signed_distance_to_cube(vertices)[away_from_edges(vertices, volume.truncation)] / volume.voxel
+    assert -0.35 < signed.mean() < 0.1
+    assert np.abs(signed).mean() < 0.45
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_fusion_on_cuda_gives_the_cpus_grid(fused_cube):
     scene = synthetic_scene("cube", views=24, size=64)
@@ -66,7 +95,11 @@ def test_fusion_on_cuda_gives_the_cpus_grid(fused_cube):
     cpu_tsdf, cpu_observed = fused_cube.dense()
     cuda_tsdf, cuda_observed = on_cuda.dense()
     np.testing.assert_array_equal(cpu_observed, cuda_observed)
-    np.testing.assert_allclose(cpu_tsdf, cuda_tsdf, atol=1e-5)
+    # Equal to rounding, but where one view's distance to a voxel sits at -truncation to rounding:
+    # it counts on one device and not on the other (on an H200, 1 voxel in 262,144 differed by 0.02).
+    difference = np.abs(cpu_tsdf - cuda_tsdf)
+    assert np.mean(difference > 1e-5) < 1e-4
+    assert difference.max() < 0.1
 
 
 def test_a_floater_seen_by_one_view_is_carved_by_the_others():
@@ -78,8 +111,7 @@ def test_a_floater_seen_by_one_view_is_carved_by_the_others():
     views[0] = (floating, colour)
     volume = fuse(TSDFVolume.create([-1, -1, -1], [1, 1, 1], 64), views, scene.cameras)
     vertices = mesh_from_volume(volume).points
-    distance_to_surface = np.abs(np.abs(vertices).max(axis=1) - 0.5)
-    assert distance_to_surface.max() < 3 * volume.voxel
+    assert np.abs(signed_distance_to_cube(vertices)).max() < 3 * volume.voxel
 
 
 def test_decimation_and_every_file_format(fused_cube, tmp_path):
