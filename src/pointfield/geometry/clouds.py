@@ -47,9 +47,15 @@ def backproject(view: dict[str, torch.Tensor], cameras: Cameras, index: int, min
     opacity = view["opacity"].to(depth.device)
     keep = (opacity >= min_opacity) & (depth > 0) & torch.isfinite(depth)
     points = rays.at(depth)  # (H, W, 3)
-    normals, has_normal = depth_map_normals(points, keep)
-    facing_away = (normals * rays.directions).sum(-1, keepdim=True) > 0
-    normals = torch.where(has_normal[..., None], torch.where(facing_away, -normals, normals), float("nan"))
+    normals = torch.full_like(points, float("nan"))
+    # Central differences need both neighbours kept, horizontally and vertically.
+    inner = keep[1:-1, 1:-1] & keep[1:-1, :-2] & keep[1:-1, 2:] & keep[:-2, 1:-1] & keep[2:, 1:-1]
+    across = points[1:-1, 2:] - points[1:-1, :-2]
+    down = points[2:, 1:-1] - points[:-2, 1:-1]
+    normal = torch.nn.functional.normalize(torch.linalg.cross(across, down), dim=-1)
+    facing_away = (normal * rays.directions[1:-1, 1:-1]).sum(-1, keepdim=True) > 0
+    normal = torch.where(facing_away, -normal, normal)
+    normals[1:-1, 1:-1] = torch.where(inner[..., None], normal, normals[1:-1, 1:-1])
     colours = (view["rgb"].to(depth.device).clamp(0, 1) * 255).round().to(torch.uint8)
     return PointCloud(
         points[keep].cpu().numpy(),
@@ -59,22 +65,6 @@ def backproject(view: dict[str, torch.Tensor], cameras: Cameras, index: int, min
             "opacity": opacity[keep].float().cpu().numpy(),
         },
     )
-
-
-def depth_map_normals(points: torch.Tensor, valid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Unit normals ``(H, W, 3)`` of a back-projected depth map ``points`` ``(H, W, 3)``, unoriented,
-    and where there is one ``(H, W)``: ``(dP/dx) x (dP/dy)`` from central differences, which need
-    the pixel and its four neighbours ``valid`` (zero normals elsewhere: the image border, silhouettes).
-    """
-    normals = torch.zeros_like(points)
-    has_normal = torch.zeros_like(valid)
-    inner = valid[1:-1, 1:-1] & valid[1:-1, :-2] & valid[1:-1, 2:] & valid[:-2, 1:-1] & valid[2:, 1:-1]
-    across = points[1:-1, 2:] - points[1:-1, :-2]
-    down = points[2:, 1:-1] - points[:-2, 1:-1]
-    normal = torch.nn.functional.normalize(torch.linalg.cross(across, down), dim=-1)
-    normals[1:-1, 1:-1] = torch.where(inner[..., None], normal, 0.0)
-    has_normal[1:-1, 1:-1] = inner
-    return normals, has_normal
 
 
 def cloud_from_views(
