@@ -77,15 +77,14 @@ def test_depth_is_interpolated_on_a_plane_and_not_across_an_occlusion():
     # A tilted plane's depth map: z = 2 + 0.01 * column, at pixel centres (column + 0.5).
     depth = (2 + 0.01 * (torch.arange(8.0) + 0.5)).expand(6, 8).clone()
     pixels = torch.tensor([[3.25, 2.5], [0.1, 0.2], [7.9, 5.9]])
-    nearest = (pixels[:, 1].floor() * 8 + pixels[:, 0].floor()).long()
     # inside: exact; past the outer centres: held at the outer centre's depth
-    torch.testing.assert_close(interpolated_depth(depth, pixels, nearest), torch.tensor([2.0325, 2.005, 2.075]))
-    # a step of more than a tenth of the depth (an occluding edge), or a pixel that saw nothing: the nearest pixel
+    torch.testing.assert_close(interpolated_depth(depth, pixels), torch.tensor([2.0325, 2.005, 2.075]))
+    # a step of more than a tenth of the depth (an occluding edge), or a pixel that saw nothing:
+    # the depth of the pixel the position falls in (column 3 of the step, the empty corner's neighbour)
     depth[:, 4:] += 1.0
     depth[0, 0] = 0.0
-    pixels = torch.tensor([[3.75, 2.5], [0.75, 0.75]])
-    nearest = (pixels[:, 1].floor() * 8 + pixels[:, 0].floor()).long()
-    torch.testing.assert_close(interpolated_depth(depth, pixels, nearest), torch.tensor([2.035, 0.0]))
+    pixels = torch.tensor([[3.75, 2.5], [4.25, 2.5], [0.75, 0.75], [1.25, 1.25]])
+    torch.testing.assert_close(interpolated_depth(depth, pixels), torch.tensor([2.035, 3.045, 0.0, 2.015]))
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")

@@ -206,7 +206,7 @@ class TSDFVolume:
         rgb = rgb.to(self.device, torch.float32).reshape(-1, 3)
         pixels, z = _project(camera, self.centres)
         pixel, inside = _nearest_pixel(pixels, z, int(camera.width[0]), int(camera.height[0]))
-        seen = interpolated_depth(depth, pixels, pixel)
+        seen = interpolated_depth(depth, pixels)
         sdf = seen - z
         observed = inside & (seen > 0) & (sdf >= -self.truncation)
         weight = self.weight
@@ -267,11 +267,11 @@ def _nearest_pixel(pixels: torch.Tensor, z: torch.Tensor, width: int, height: in
     return torch.where(inside, row * width + column, 0).long(), inside
 
 
-def interpolated_depth(depth: torch.Tensor, pixels: torch.Tensor, nearest: torch.Tensor) -> torch.Tensor:
+def interpolated_depth(depth: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
     """``(P,)`` depth of map ``depth`` ``(H, W)`` at continuous ``pixels`` ``(P, 2)``, bilinear between
     the four pixel centres around each (centres at ``+ 0.5``; held constant past the image's outer
-    centres); the depth of pixel ``nearest`` (flat indices ``(P,)``) where one of the four is 0 or
-    they differ by more than :data:`OCCLUSION_STEP` of it (module docstring).
+    centres); the depth of the nearest of the four -- the pixel the position falls in -- where one
+    of them is 0 or they differ by more than :data:`OCCLUSION_STEP` of it (module docstring).
     """
     height, width = depth.shape
     x = (pixels[:, 0] - 0.5).nan_to_num(0.0).clamp(0, width - 1)
@@ -287,7 +287,7 @@ def interpolated_depth(depth: torch.Tensor, pixels: torch.Tensor, nearest: torch
     interpolated = torch.lerp(torch.lerp(d00, d01, across), torch.lerp(d10, d11, across), down)
     lowest = torch.minimum(torch.minimum(d00, d01), torch.minimum(d10, d11))
     highest = torch.maximum(torch.maximum(d00, d01), torch.maximum(d10, d11))
-    at_nearest = flat[nearest]
+    at_nearest = torch.where(down < 0.5, torch.where(across < 0.5, d00, d01), torch.where(across < 0.5, d10, d11))
     smooth = (lowest > 0) & (highest - lowest <= OCCLUSION_STEP * at_nearest)
     return torch.where(smooth, interpolated, at_nearest)
 
