@@ -239,6 +239,30 @@ def cube_geometry(args, out: Path) -> dict:
     return result
 
 
+def new_record(args, device: torch.device) -> Record:
+    """The run's record: ``gpu`` (issue 19's lego, with whatever other parts ran), or ``gpu-geometry``
+    for the geometry part alone (issue 14's), so that a geometry lease does not replace the lego record."""
+    if args.parts == ["geometry"]:
+        return Record(
+            "gpu-geometry", "The GPU path: TSDF fusion and the textured cube's geometry", issue="14",
+            device=device_name(device),
+            about="TSDF fusion of the cube's exact depth maps (24 views at 100 x 100 and 800 x 800, 256^3 over "
+                  "[-1, 1]^3) on the GPU and on the same machine's CPU, interleaved, median of 3 rounds; then `scene "
+                  f"make textured-cube` (100 views of 100 x 100), the hash-grid field trained for "
+                  f"{args.geometry_seconds:g} s with `nerf train`'s defaults for the device, its mesh (TSDF at 256^3) "
+                  "and cloud exported on the GPU, timed, and scored as bench_geometry.py scores them (Chamfer in % of "
+                  "the true bounding-box diagonal, F-score at 1 % of it).")
+    return Record(
+        "gpu", "The GPU path: lego at full resolution, PointNet on the GPU", issue="19", device=device_name(device),
+        about=f"NeRF-synthetic lego at {800 // args.downscale} x {800 // args.downscale} (`--downscale {args.downscale} "
+              "--holdout-every 10`, white background; 90 views trained on, 10 held out), each model trained by the "
+              "function behind its command on one GPU and scored on all 10 held-out views every `--*-eval-every` "
+              "steps; held-out PSNR is the mean of per-view PSNR; PSNR at a time is the last evaluation at or before "
+              "that many training seconds (evaluations excluded). Renders: held-out view 0 through `run.render`, "
+              f"median of {args.renders}. PointNet: training steps (Adam) on batches of {args.pointnet_batch} "
+              "clouds of 1,024 points, GPU and CPU in the same run.")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", type=Path, default=LEGO, help=f"lego, Blender format (default {LEGO})")
@@ -266,26 +290,7 @@ def main() -> int:
 
     device = pick_device(args.device)
     args.out.mkdir(parents=True, exist_ok=True)
-    # The geometry part alone is issue 14's, recorded apart so that it does not replace issue 19's lego record.
-    geometry_only = args.parts == ["geometry"]
-    record = Record(
-        "gpu-geometry" if geometry_only else "gpu",
-        "The GPU path: TSDF fusion and the textured cube's geometry" if geometry_only
-        else "The GPU path: lego at full resolution, PointNet on the GPU",
-        issue="14" if geometry_only else "19", device=device_name(device),
-        about="TSDF fusion of the cube's exact depth maps (24 views at 100 x 100 and 800 x 800, 256^3 over [-1, 1]^3) "
-              "on the GPU and on the same machine's CPU, interleaved, median of 3 rounds; then `scene make "
-              f"textured-cube` (100 views of 100 x 100), the hash-grid field trained for {args.geometry_seconds:g} s "
-              "with `nerf train`'s defaults for the device, its mesh (TSDF at 256^3) and cloud exported on the GPU, "
-              "timed, and scored as bench_geometry.py scores them (Chamfer in % of the true bounding-box diagonal, "
-              "F-score at 1 % of it)." if geometry_only else
-              f"NeRF-synthetic lego at {800 // args.downscale} x {800 // args.downscale} (`--downscale {args.downscale} "
-              "--holdout-every 10`, white background; 90 views trained on, 10 held out), each model trained by the "
-              "function behind its command on one GPU and scored on all 10 held-out views every `--*-eval-every` "
-              "steps; held-out PSNR is the mean of per-view PSNR; PSNR at a time is the last evaluation at or before "
-              "that many training seconds (evaluations excluded). Renders: held-out view 0 through `run.render`, "
-              f"median of {args.renders}. PointNet: training steps (Adam) on batches of {args.pointnet_batch} "
-              "clouds of 1,024 points, GPU and CPU in the same run.")
+    record = new_record(args, device)
     results = {}
     for model in [part for part in args.parts if part in ("ngp", "splat")]:
         out = args.out / model
