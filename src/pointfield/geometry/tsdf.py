@@ -8,7 +8,8 @@ a voxel at world point ``x`` and a view with z-depth map ``D``:
     sdf      = D(u, v) - z                      positive in front of the surface, negative behind
     observed = D(u, v) > 0 and sdf >= -truncation    (far behind a surface stays unknown)
     F <- (W F + min(1, sdf / truncation)) / (W + 1),  W <- W + 1
-    colour sum += c(u, v), count += 1          only where |sdf| < truncation (near the surface)
+    colour sum += c(u, v), count += 1          only where |sdf| < truncation (near the surface);
+                                                c: the colour of the pixel (u, v) falls in
 
 ``D(u, v)`` is interpolated bilinearly between the four pixel centres around ``(u, v)``; the
 nearest pixel's depth is used where one of the four saw nothing or they differ by more than a
