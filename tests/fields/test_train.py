@@ -73,6 +73,14 @@ def test_render_paths_write_frames(tiny_run, tmp_path, path, suffix):
         assert len(list(out.glob("color_*.png"))) == 3 and len(list(out.glob("depth_*.png"))) == 3
 
 
+def test_a_render_shows_a_bar_over_its_frames_unless_told_not_to(tiny_run, tmp_path, capsys):
+    assert main(["nerf", "render", str(tiny_run[0]), "--frames", "2", "--out", str(tmp_path / "a.gif")]) == 0
+    assert "2/2" in capsys.readouterr().err
+    assert main(["nerf", "render", str(tiny_run[0]), "--frames", "2", "--out", str(tmp_path / "b.gif"),
+                 "--no-progress"]) == 0
+    assert "2/2" not in capsys.readouterr().err
+
+
 def test_a_render_path_with_no_frames_is_an_error_and_writes_nothing(tiny_run, tmp_path, capsys):
     out = tmp_path / "none.gif"
     assert main(["nerf", "render", str(tiny_run[0]), "--frames", "0", "--out", str(out)]) == 1

@@ -234,8 +234,8 @@ def reconstruct_scene(
         print_fn(f"{label}training {described[model]}")
         began = time.perf_counter()
         metrics[model] = trainers[model](run_dir)
-        turntables[model] = Path(load_run(run_dir).render_path("orbit", frames=settings.frames,
-                                                               out=run_dir / TURNTABLE)["out"])
+        turntables[model] = Path(load_run(run_dir).render_path("orbit", frames=settings.frames, out=run_dir / TURNTABLE,
+                                                               progress=progress)["out"])
         print_fn(f"{label}held-out PSNR {metrics[model]['psnr']:.2f} dB, SSIM "
                  f"{metrics[model]['ssim']:.3f} on {metrics[model]['views']} views "
                  f"({metrics[model]['steps']} steps, {time.perf_counter() - began:.0f} s with the turntable)")

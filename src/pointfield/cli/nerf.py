@@ -95,6 +95,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                              "opacity); into a folder, depth outputs also come as .npy and 16-bit PNG depth "
                              "maps with their scale in depth_scale.json")
     render.add_argument("--device", help=DEVICE_HELP)
+    render.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     render.set_defaults(run=run_render)
 
     export = verbs.add_parser(
@@ -167,7 +168,7 @@ def run_render(args: argparse.Namespace) -> int:
     from pointfield.viz.views import PANELS
 
     result = render(args.run_dir, path=args.path, frames=args.frames, out=args.out, device=args.device,
-                    outputs=args.outputs or PANELS)
+                    outputs=args.outputs or PANELS, progress=args.progress)
     print(f"wrote {result['frames']} frames ({result['path']}) to {result['out']}")
     return 0
 

@@ -97,6 +97,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help="what to write: rgb, depth (expected), median_depth, opacity (default: rgb depth "
                              "opacity); into a folder, depth outputs also come as .npy and 16-bit PNG depth "
                              "maps with their scale in depth_scale.json")
+    render.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     render.set_defaults(run=run_render)
 
     export = verbs.add_parser(
@@ -139,7 +140,7 @@ def run_render(args: argparse.Namespace) -> int:
 
     result = render(args.source, scene=args.scene, downscale=args.downscale, path=args.path,
                     frames=args.frames, out=args.out, device=args.device, rasterizer=args.rasterizer,
-                    outputs=args.outputs or PANELS)
+                    outputs=args.outputs or PANELS, progress=args.progress)
     print(f"wrote {result['frames']} frames ({result['path']}, {result['splats']:,} splats, "
           f"{result['rasterizer']} rasterizer) to {result['out']}")
     return 0

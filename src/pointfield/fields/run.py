@@ -103,11 +103,13 @@ def render(
     out: str | os.PathLike[str] = "render.gif",
     device: str | None = None,
     outputs: Sequence[str] = PANELS,
+    progress: bool = True,
 ) -> dict[str, Any]:
     """Render a trained run along ``path`` into ``out`` (``.gif``, ``.mp4`` or a folder): ``nerf render``.
 
     ``outputs``: which of :data:`~pointfield.scenes.heldout.OUTPUTS` to write (default colour,
     depth and opacity); depth outputs written into a folder come as depth maps too
-    (:func:`pointfield.viz.views.write_views`).
+    (:func:`pointfield.viz.views.write_views`). ``progress``: a bar over the frames.
     """
-    return open_run((FieldRun,), run, device).render_path(path, frames=frames, out=out, outputs=outputs)
+    return open_run((FieldRun,), run, device).render_path(path, frames=frames, out=out, outputs=outputs,
+                                                          progress=progress)

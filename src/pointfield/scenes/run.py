@@ -96,6 +96,7 @@ class SceneRun(Run):
         scene: str | os.PathLike[str] | None = None,
         downscale: int = 1,
         outputs: Sequence[str] = PANELS,
+        progress: bool = True,
     ) -> dict[str, Any]:
         """Render a camera ``path`` (orbit, spiral, dataset: :mod:`pointfield.scenes.paths`) into ``out``.
 
@@ -103,28 +104,35 @@ class SceneRun(Run):
         depth | opacity unless ``outputs`` says otherwise), anything else a folder of PNGs, with
         depth maps as ``.npy`` and 16-bit PNG files too (:func:`pointfield.viz.views.write_views`).
         The path goes round the training scene unless ``scene`` (read at ``downscale``) is given.
+        ``progress``: a bar over the frames.
         """
         around = self.scene if scene is None else open_scene(scene, downscale)
-        return render_path(self.render, around, path, frames=frames, out=out, outputs=outputs)
+        return render_path(self.render, around, path, frames=frames, out=out, outputs=outputs, progress=progress)
 
 
 def render_path(
     render: Callable[[Cameras, Sequence[str]], list[View]], scene: Scene, path: str = "orbit", *,
     frames: int | None = None, out: str | os.PathLike[str] = "render.gif", outputs: Sequence[str] = PANELS,
+    progress: bool = True,
 ) -> dict[str, Any]:
     """Render camera ``path`` around ``scene`` with ``render(cameras, outputs) -> views`` into ``out``.
 
     What :meth:`SceneRun.render_path` does, for anything that renders cameras (a splat file too).
     Depth and opacity are rendered whatever ``outputs`` says: the pictures' depth range comes
-    from them (:func:`~pointfield.scenes.heldout.depth_range`) and fades with opacity.
+    from them (:func:`~pointfield.scenes.heldout.depth_range`) and fades with opacity. The frames
+    are rendered one at a time, so that ``progress`` can show a bar over them.
     """
+    from tqdm.auto import tqdm
+
     out = Path(out)
     if not outputs:
         raise PointfieldError(f"no render outputs asked for; choose from {', '.join(OUTPUTS)}")
     check_outputs(outputs)  # before anything is rendered
     check_views_output(out)
     cameras = path_cameras(scene, path, frames)
-    views = [as_numpy(view) for view in render(cameras, tuple(dict.fromkeys([*outputs, "depth", "opacity"])))]
+    rendered = tuple(dict.fromkeys([*outputs, "depth", "opacity"]))
+    views = [as_numpy(render(cameras[index], rendered)[0])
+             for index in tqdm(range(len(cameras)), desc="rendering", unit="frame", disable=not progress)]
     near, far = depth_range(scene, views)
     write_views(views, out, near, far, outputs)
     return {"out": str(out), "frames": len(views), "path": path, "outputs": list(outputs)}

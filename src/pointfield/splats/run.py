@@ -182,6 +182,7 @@ def render(
     device: str | None = None,
     rasterizer: str = "auto",
     outputs: Sequence[str] = PANELS,
+    progress: bool = True,
 ) -> dict[str, Any]:
     """Render a run folder or a splat ``.ply`` along a camera path into ``out``.
 
@@ -190,13 +191,15 @@ def render(
     ``downscale``). ``out`` ending in ``.gif`` / ``.mp4`` gets a video of panels of ``outputs``
     (default colour | depth | opacity), anything else a folder of PNGs, with depth maps as
     ``.npy`` and 16-bit PNG files too (:func:`pointfield.viz.views.write_views`).
-    ``rasterizer``: "pointfield", "gsplat" or "auto" (gsplat where it can run).
+    ``rasterizer``: "pointfield", "gsplat" or "auto" (gsplat where it can run). ``progress``: a bar
+    over the frames.
     """
     source = Path(source)
     if source.is_dir():
         opened = open_run((SplatRun,), source, device)
         opened.rasterizer = choose_rasterizer(rasterizer, opened.device)
-        result = opened.render_path(path, frames=frames, out=out, scene=scene, downscale=downscale, outputs=outputs)
+        result = opened.render_path(path, frames=frames, out=out, scene=scene, downscale=downscale, outputs=outputs,
+                                    progress=progress)
         return {**result, "splats": len(opened.gaussians), "rasterizer": opened.rasterizer}
     if scene is None:
         raise PointfieldError(f"{source}: a splat file has no cameras; pass --scene SCENE to render it")
@@ -210,5 +213,5 @@ def render(
         return [render_camera(gaussians, cameras, index, background, chosen, rendered, **mode)
                 for index in range(len(cameras))]
 
-    result = render_path(render_cameras, around, path, frames=frames, out=out, outputs=outputs)
+    result = render_path(render_cameras, around, path, frames=frames, out=out, outputs=outputs, progress=progress)
     return {**result, "splats": len(gaussians), "rasterizer": chosen, **mode}
