@@ -67,6 +67,15 @@ def test_clean_cloud_crops_drops_strays_and_thins():
         clean_cloud(cloud, crop=[1, 0, 0, 0, 1, 1])
 
 
+def test_the_command_prints_a_writers_warning_as_one_line(splat_run, tmp_path, capsys):
+    # LAS stores 16-bit colours: the writer warns, and every command says so the way it says errors,
+    # with no source file and line of pointfield's code.
+    assert main(["splat", "export", str(splat_run), "--centres", str(tmp_path / "centres.las")]) == 0
+    err = capsys.readouterr().err
+    assert "pointfield: warning: LAS changes these fields: colors uint8 -> uint16" in err
+    assert "UserWarning" not in err and ".py:" not in err
+
+
 def test_export_cloud_of_a_splat_run_through_the_command_line(splat_run, tmp_path, capsys):
     out = tmp_path / "cloud.ply"
     assert main(["splat", "export", str(splat_run), "--cloud", str(out), "--min-opacity", "0.05",

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 from collections.abc import Sequence
 
 import pointfield
@@ -41,9 +42,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def print_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int, file=None,
+                  line: str | None = None) -> None:
+    """The command's :func:`warnings.showwarning`: one ``pointfield: warning:`` line on stderr, as
+    errors are one ``pointfield: error:`` line, with no source file or line of code a user cannot act on."""
+    print(f"pointfield: warning: {message}", file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run a command; expected failures print one line to stderr and return non-zero."""
+    """Run a command; expected failures print one line to stderr and return non-zero, and each
+    warning is printed, when it happens, as one line (:func:`print_warning`)."""
     args = build_parser().parse_args(argv)
+    with warnings.catch_warnings():
+        warnings.showwarning = print_warning
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.run(args) or 0)
     except (PointfieldError, FileNotFoundError, IsADirectoryError, PermissionError) as error:

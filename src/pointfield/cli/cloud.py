@@ -17,8 +17,6 @@ from __future__ import annotations
 import argparse
 import inspect
 import json
-import sys
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -163,11 +161,7 @@ def run_convert(args: argparse.Namespace) -> int:
         return cloud_streaming.run_streaming_convert(args)
 
     cloud = pointfield.read(args.source, **read_options(args.source, args.columns))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        pointfield.write(args.destination, cloud, encoding=args.encoding)
-    for warning in caught:
-        print(f"pointfield: warning: {warning.message}", file=sys.stderr)
+    pointfield.write(args.destination, cloud, encoding=args.encoding)
     written = describe(args.destination)
     fields = ", ".join(written["fields"]) or "none"
     faces = f", {written['faces']:,} faces" if written["faces"] else ""

@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -154,16 +152,6 @@ def _report(args: argparse.Namespace, result: dict[str, Any], text: str) -> int:
     return 0
 
 
-def _quietly(function: Any, *args: Any, **kwargs: Any) -> dict[str, Any]:
-    """Run a verb, printing each of its warnings once as a ``pointfield: warning:`` line."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        result = function(*args, **kwargs)
-    for message in dict.fromkeys(str(w.message) for w in caught):
-        print(f"pointfield: warning: {message}", file=sys.stderr)
-    return result
-
-
 def _kept(args: argparse.Namespace, result: dict[str, Any]) -> str:
     return f"wrote {args.destination}: {result.get('output_points', 0):,} of {result.get('input_points', 0):,} points"
 
@@ -171,8 +159,8 @@ def _kept(args: argparse.Namespace, result: dict[str, Any]) -> str:
 def run_downsample(args: argparse.Namespace) -> int:
     if args.nearest and args.voxel is None:
         raise PointfieldError("--nearest applies to --voxel")
-    result = _quietly(
-        streaming.downsample, args.source, args.destination, args.voxel,
+    result = streaming.downsample(
+        args.source, args.destination, args.voxel,
         mode="nearest" if args.nearest else "centroid", random=args.random, every=args.every,
         seed=args.seed, encoding=args.encoding, columns=args.columns, **scale_options(args),
     )
@@ -180,16 +168,16 @@ def run_downsample(args: argparse.Namespace) -> int:
 
 
 def run_crop(args: argparse.Namespace) -> int:
-    result = _quietly(
-        streaming.crop, args.source, args.destination, box=args.box, polygon=args.polygon,
+    result = streaming.crop(
+        args.source, args.destination, box=args.box, polygon=args.polygon,
         encoding=args.encoding, columns=args.columns, **scale_options(args),
     )
     return _report(args, result, _kept(args, result))
 
 
 def run_tile(args: argparse.Namespace) -> int:
-    result = _quietly(
-        streaming.tile, args.source, args.destination, args.size, buffer=args.buffer, origin=args.origin,
+    result = streaming.tile(
+        args.source, args.destination, args.size, buffer=args.buffer, origin=args.origin,
         suffix=args.to, encoding=args.encoding, columns=args.columns, **scale_options(args),
     )
     tiles = result.get("tiles", [])
@@ -198,15 +186,15 @@ def run_tile(args: argparse.Namespace) -> int:
 
 
 def run_merge(args: argparse.Namespace) -> int:
-    result = _quietly(streaming.merge, args.sources, args.destination, encoding=args.encoding, columns=args.columns,
-                      **scale_options(args))
+    result = streaming.merge(args.sources, args.destination, encoding=args.encoding, columns=args.columns,
+                             **scale_options(args))
     return _report(args, result, f"wrote {args.destination}: {result.get('output_points', 0):,} points "
                    f"from {len(args.sources)} files")
 
 
 def run_stats(args: argparse.Namespace) -> int:
     """``cloud info FILE --stats``."""
-    info = _quietly(streaming.stats, args.file, columns=args.columns, **scale_options(args, outputs=False))
+    info = streaming.stats(args.file, columns=args.columns, **scale_options(args, outputs=False))
     print(json.dumps(info, indent=2) if args.json else format_stats(info))
     return 0
 
@@ -216,15 +204,15 @@ def run_streaming_convert(args: argparse.Namespace) -> int:
     options = scale_options(args)
     if args.source.is_dir():
         options.pop("scratch")
-        result = _quietly(streaming.convert_folder, args.source, args.destination, args.to, pattern=args.pattern,
-                          encoding=args.encoding, columns=args.columns, **options)
+        result = streaming.convert_folder(args.source, args.destination, args.to, pattern=args.pattern,
+                                          encoding=args.encoding, columns=args.columns, **options)
         print(f"converted {result['converted']} of {result['files']} files into {args.destination} "
               f"({result['skipped']} already there; {result['points']:,} points)")
         return 0
     if args.to is not None or args.pattern is not None:
         raise PointfieldError("--to and --pattern apply to a folder IN; name OUT with its suffix instead")
-    result = _quietly(streaming.convert, args.source, args.destination, encoding=args.encoding, columns=args.columns,
-                      **options)
+    result = streaming.convert(args.source, args.destination, encoding=args.encoding, columns=args.columns,
+                               **options)
     if not result.get("skipped"):
         print(f"wrote {args.destination}: {result['output_points']:,} points (streamed)")
     return 0

@@ -10,10 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-import warnings
-from collections.abc import Callable
-from typing import Any
 
 SCENE_FORMATS = ("blender", "nerfstudio", "llff", "colmap", "npz")
 WRITABLE_FORMATS = ("nerfstudio", "blender")
@@ -163,10 +159,8 @@ def _run_from_images(args: argparse.Namespace) -> int:
     from pointfield.scenes.sfm import pose_images
 
     photos = args.photos[0] if len(args.photos) == 1 else args.photos
-    report = _with_warnings_printed(
-        lambda: pose_images(
-            photos, args.out, options=_posing_settings(args), overwrite=args.overwrite, progress=not args.quiet
-        )
+    report = pose_images(
+        photos, args.out, options=_posing_settings(args), overwrite=args.overwrite, progress=not args.quiet
     )
     print(report.format())
     return 0
@@ -175,15 +169,13 @@ def _run_from_images(args: argparse.Namespace) -> int:
 def _run_from_video(args: argparse.Namespace) -> int:
     from pointfield.scenes.sfm import pose_video
 
-    report = _with_warnings_printed(
-        lambda: pose_video(
-            args.clip,
-            args.out,
-            frames=args.frames,
-            options=_posing_settings(args),
-            overwrite=args.overwrite,
-            progress=not args.quiet,
-        )
+    report = pose_video(
+        args.clip,
+        args.out,
+        frames=args.frames,
+        options=_posing_settings(args),
+        overwrite=args.overwrite,
+        progress=not args.quiet,
     )
     print(report.format())
     return 0
@@ -199,9 +191,7 @@ def _reading_options(parser: argparse.ArgumentParser) -> None:
 def _run_info(args: argparse.Namespace) -> int:
     from pointfield.scenes.tools import format_scene_info, scene_info
 
-    info = _with_warnings_printed(
-        lambda: scene_info(args.path, format=args.format, holdout_every=args.holdout_every)
-    )
+    info = scene_info(args.path, format=args.format, holdout_every=args.holdout_every)
     print(json.dumps(info, indent=2) if args.json else format_scene_info(info))
     return 0
 
@@ -209,16 +199,14 @@ def _run_info(args: argparse.Namespace) -> int:
 def _run_convert(args: argparse.Namespace) -> int:
     from pointfield.scenes.tools import convert_scene
 
-    out = _with_warnings_printed(
-        lambda: convert_scene(
-            args.input,
-            args.output,
-            args.format,
-            input_format=args.input_format,
-            downscale=args.downscale,
-            holdout_every=args.holdout_every,
-            overwrite=args.overwrite,
-        )
+    out = convert_scene(
+        args.input,
+        args.output,
+        args.format,
+        input_format=args.input_format,
+        downscale=args.downscale,
+        holdout_every=args.holdout_every,
+        overwrite=args.overwrite,
     )
     print(f"wrote {out} ({args.format})")
     return 0
@@ -227,14 +215,12 @@ def _run_convert(args: argparse.Namespace) -> int:
 def _run_cameras(args: argparse.Namespace) -> int:
     from pointfield.scenes.tools import plot_cameras
 
-    out = _with_warnings_printed(
-        lambda: plot_cameras(
-            args.path,
-            args.out,
-            format=args.format,
-            holdout_every=args.holdout_every,
-            max_points=args.max_points,
-        )
+    out = plot_cameras(
+        args.path,
+        args.out,
+        format=args.format,
+        holdout_every=args.holdout_every,
+        max_points=args.max_points,
     )
     print(f"wrote {out}")
     return 0
@@ -243,28 +229,16 @@ def _run_cameras(args: argparse.Namespace) -> int:
 def _run_make(args: argparse.Namespace) -> int:
     from pointfield.scenes.synthetic import make_scene
 
-    out = _with_warnings_printed(
-        lambda: make_scene(
-            args.name,
-            args.out,
-            args.views,
-            args.size,
-            layout=args.layout,
-            radius=args.radius,
-            supersampling=args.supersampling,
-            overwrite=args.overwrite,
-        )
+    out = make_scene(
+        args.name,
+        args.out,
+        args.views,
+        args.size,
+        layout=args.layout,
+        radius=args.radius,
+        supersampling=args.supersampling,
+        overwrite=args.overwrite,
     )
     print(f"wrote {out}: {args.views} views of {args.size}x{args.size} ({args.name})")
     return 0
 
-
-def _with_warnings_printed(action: Callable[[], Any]) -> Any:
-    """Run ``action``, printing each warning as one ``pointfield: warning:`` line on stderr."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            return action()
-        finally:
-            for warning in caught:
-                print(f"pointfield: warning: {warning.message}", file=sys.stderr)
