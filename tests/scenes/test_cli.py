@@ -104,3 +104,10 @@ def test_bad_command_lines_are_usage_errors(argv):
     with pytest.raises(SystemExit) as exit_info:
         main(argv)
     assert exit_info.value.code == 2
+
+
+@pytest.mark.parametrize("flag", ["--no-progress", "--quiet"])
+def test_posing_takes_no_progress_as_every_command_does_and_still_takes_quiet(flag):
+    for verb in (["from-images", "photos"], ["from-video", "clip.mp4"]):
+        assert build_parser().parse_args(["scene", *verb, "--out", "scene", flag]).progress is False
+        assert build_parser().parse_args(["scene", *verb, "--out", "scene"]).progress is True

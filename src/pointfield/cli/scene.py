@@ -139,7 +139,8 @@ def _posing_options(parser: argparse.ArgumentParser) -> None:
         "--camera-model", choices=SFM_CAMERA_MODELS, default="SIMPLE_RADIAL", help="default: SIMPLE_RADIAL"
     )
     parser.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    # --quiet was this group's own name for it; kept so that scripts written with it still run.
+    parser.add_argument("--no-progress", "--quiet", dest="progress", action="store_false", help="no progress bars")
 
 
 def _posing_settings(args: argparse.Namespace):
@@ -160,7 +161,7 @@ def _run_from_images(args: argparse.Namespace) -> int:
 
     photos = args.photos[0] if len(args.photos) == 1 else args.photos
     report = pose_images(
-        photos, args.out, options=_posing_settings(args), overwrite=args.overwrite, progress=not args.quiet
+        photos, args.out, options=_posing_settings(args), overwrite=args.overwrite, progress=args.progress
     )
     print(report.format())
     return 0
@@ -175,7 +176,7 @@ def _run_from_video(args: argparse.Namespace) -> int:
         frames=args.frames,
         options=_posing_settings(args),
         overwrite=args.overwrite,
-        progress=not args.quiet,
+        progress=args.progress,
     )
     print(report.format())
     return 0

@@ -55,7 +55,7 @@ def textured_photos(tmp_path_factory) -> tuple[Path, dict[str, np.ndarray]]:
 def posed_scene(textured_photos, tmp_path_factory) -> Path:
     folder, _ = textured_photos
     out = tmp_path_factory.mktemp("posed") / "scene"
-    assert main(["scene", "from-images", str(folder), "--out", str(out), "--quiet"]) == 0
+    assert main(["scene", "from-images", str(folder), "--out", str(out), "--no-progress"]) == 0
     return out
 
 
@@ -110,7 +110,7 @@ def test_a_killed_run_restarts_from_its_last_finished_stage(textured_photos, tmp
         raise KeyboardInterrupt
 
     monkeypatch.setattr(pipeline, "_mapping_stage", killed)
-    assert main(["scene", "from-images", str(folder), "--out", str(out), "--quiet"]) == 130
+    assert main(["scene", "from-images", str(folder), "--out", str(out), "--no-progress"]) == 130
     assert not out.exists()  # never a half-written scene
     state = json.loads((tmp_path / "scene.partial" / "state.json").read_text())
     assert sorted(state["stages"]) == ["features", "images", "matching"]
@@ -119,7 +119,7 @@ def test_a_killed_run_restarts_from_its_last_finished_stage(textured_photos, tmp
     calls = []
     for stage in ("_images_stage", "_features_stage", "_matching_stage"):
         monkeypatch.setattr(pipeline, stage, lambda *a, stage=stage, **k: calls.append(stage))
-    assert main(["scene", "from-images", str(folder), "--out", str(out), "--quiet"]) == 0
+    assert main(["scene", "from-images", str(folder), "--out", str(out), "--no-progress"]) == 0
     assert calls == []  # the finished stages were not run again
     assert len(read_scene(out)) == VIEWS
 
@@ -133,7 +133,7 @@ def test_from_video_poses_the_frames_of_a_clip(tmp_path):
     clip = tmp_path / "walk.mp4"
     iio.imwrite(clip, frames, plugin="FFMPEG", fps=10, quality=9)
     out = tmp_path / "scene"
-    assert main(["scene", "from-video", str(clip), "--out", str(out), "--frames", "18", "--quiet"]) == 0
+    assert main(["scene", "from-video", str(clip), "--out", str(out), "--frames", "18", "--no-progress"]) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["images"] == 18 and report["registered"] == 18
     assert report["matching"] == "sequential"
@@ -178,7 +178,7 @@ def test_photos_with_nothing_in_common_say_so_and_what_to_try(capsys, tmp_path):
     for index in range(8):
         Image.fromarray(rng.integers(0, 256, (160, 160, 3), dtype=np.uint8)).save(noise / f"{index}.png")
     out = tmp_path / "out"
-    fails_with(capsys, ["scene", "from-images", str(noise), "--out", str(out), "--quiet"], "of 8 images registered")
+    fails_with(capsys, ["scene", "from-images", str(noise), "--out", str(out), "--no-progress"], "of 8 images registered")
     assert not out.exists()
 
 
