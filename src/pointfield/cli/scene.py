@@ -170,14 +170,8 @@ def _run_from_images(args: argparse.Namespace) -> int:
 def _run_from_video(args: argparse.Namespace) -> int:
     from pointfield.scenes.sfm import pose_video
 
-    report = pose_video(
-        args.clip,
-        args.out,
-        frames=args.frames,
-        options=_posing_settings(args),
-        overwrite=args.overwrite,
-        progress=args.progress,
-    )
+    report = pose_video(args.clip, args.out, frames=args.frames, options=_posing_settings(args),
+                        overwrite=args.overwrite, progress=args.progress)
     print(report.format())
     return 0
 
@@ -200,15 +194,8 @@ def _run_info(args: argparse.Namespace) -> int:
 def _run_convert(args: argparse.Namespace) -> int:
     from pointfield.scenes.tools import convert_scene
 
-    out = convert_scene(
-        args.input,
-        args.output,
-        args.format,
-        input_format=args.input_format,
-        downscale=args.downscale,
-        holdout_every=args.holdout_every,
-        overwrite=args.overwrite,
-    )
+    out = convert_scene(args.input, args.output, args.format, input_format=args.input_format,
+                        downscale=args.downscale, holdout_every=args.holdout_every, overwrite=args.overwrite)
     print(f"wrote {out} ({args.format})")
     return 0
 
@@ -216,13 +203,8 @@ def _run_convert(args: argparse.Namespace) -> int:
 def _run_cameras(args: argparse.Namespace) -> int:
     from pointfield.scenes.tools import plot_cameras
 
-    out = plot_cameras(
-        args.path,
-        args.out,
-        format=args.format,
-        holdout_every=args.holdout_every,
-        max_points=args.max_points,
-    )
+    out = plot_cameras(args.path, args.out, format=args.format, holdout_every=args.holdout_every,
+                       max_points=args.max_points)
     print(f"wrote {out}")
     return 0
 
@@ -230,16 +212,8 @@ def _run_cameras(args: argparse.Namespace) -> int:
 def _run_make(args: argparse.Namespace) -> int:
     from pointfield.scenes.synthetic import make_scene
 
-    out = make_scene(
-        args.name,
-        args.out,
-        args.views,
-        args.size,
-        layout=args.layout,
-        radius=args.radius,
-        supersampling=args.supersampling,
-        overwrite=args.overwrite,
-    )
+    out = make_scene(args.name, args.out, args.views, args.size, layout=args.layout, radius=args.radius,
+                     supersampling=args.supersampling, overwrite=args.overwrite)
     print(f"wrote {out}: {args.views} views of {args.size}x{args.size} ({args.name})")
     return 0
 
