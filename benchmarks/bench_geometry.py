@@ -243,9 +243,9 @@ def main() -> int:
         volume = TSDFVolume.create(*scene.aabb, args.resolution)  # the scene's box, as the models have
         fuse(volume, [(torch.from_numpy(scene.depth(int(i))), torch.from_numpy(scene.image(int(i)))) for i in training],
              scene.cameras[training])
-        ceiling = mesh_from_volume(volume)
-        rows.append(score_row(name, "exact depth", "mesh (ceiling)", scored(sample_mesh(ceiling, args.mesh_samples)), None))
-        record.figures[f"{name}/ceiling"] = scored(sample_mesh(ceiling, args.mesh_samples))
+        ceiling = scored(sample_mesh(mesh_from_volume(volume), args.mesh_samples))
+        rows.append(score_row(name, "exact depth", "mesh (ceiling)", ceiling, None))
+        record.figures[f"{name}/ceiling"] = ceiling
 
         for model in ("ngp", "splat"):
             run_path = args.out / f"{name}-{model}"
