@@ -7,6 +7,10 @@ run with the three interleaved (:func:`harness.interleaved`): depth maps fused p
 100 x 100 and at 800 x 800, and each mesh's distance to the true cube surface (median and 95th
 percentile of its vertices' distances, in voxels) -- the ceiling of the method on perfect depth.
 
+A fourth contender is pointfield's fusion with the classic depth lookup, the nearest pixel's
+depth instead of the interpolated one (:func:`nearest_pixel_depth`), so that what interpolation
+costs in time and gains in accuracy is measured in the same run.
+
 The peers are open3d's ``VoxelBlockGrid`` (its tensor-based, sparse voxel-block TSDF, the
 successor of ``ScalableTSDFVolume``) and ``UniformTSDFVolume`` (dense). The issue names the legacy
 ``ScalableTSDFVolume``; in the open3d-cpu 0.20 wheel here it fuses the cube's 24 depth maps into
@@ -21,6 +25,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from unittest import mock
 
 import numpy as np
 import torch
@@ -44,6 +51,29 @@ def fuse_pointfield(cameras, depths, colours, resolution: int, device="cpu"):
 
     volume = TSDFVolume.create(*BOX, resolution, truncation_voxels=TRUNCATION_VOXELS, device=device)
     return fuse(volume, [(torch.from_numpy(d), torch.from_numpy(c)) for d, c in zip(depths, colours)], cameras)
+
+
+@contextmanager
+def nearest_pixel_depth() -> Iterator[None]:
+    """While the block runs, pointfield's fusion takes each voxel's depth from the pixel it falls in
+    (the classic rule: Curless and Levoy, open3d) instead of interpolating between the four pixel
+    centres around it (:func:`pointfield.geometry.tsdf.interpolated_depth`). Benchmarks only: the
+    package has one rule, and this measures what it costs and gains against the other."""
+    from pointfield.geometry import tsdf
+
+    def nearest(depth: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
+        height, width = depth.shape
+        in_front = torch.ones(len(pixels), device=pixels.device)  # fusion masks the rest itself
+        pixel, _ = tsdf._nearest_pixel(pixels, in_front, width, height)
+        return depth.reshape(-1)[pixel]
+
+    with mock.patch.object(tsdf, "interpolated_depth", nearest):
+        yield
+
+
+def fuse_pointfield_nearest(cameras, depths, colours, resolution: int):
+    with nearest_pixel_depth():
+        return fuse_pointfield(cameras, depths, colours, resolution)
 
 
 def _rgbd(depth: np.ndarray, colour: np.ndarray):
@@ -139,13 +169,15 @@ def main() -> int:
     record = Record("tsdf", "TSDF fusion against open3d on the same depth maps", issue="14",
                     about="The synthetic cube's exact depth maps fused over [-1, 1]^3 at "
                           f"{args.resolution}^3, truncation 4 voxels, by pointfield (PyTorch, sparse voxel "
-                          f"blocks, CPU) and open3d {o3d.__version__}'s VoxelBlockGrid (sparse) and "
+                          "blocks, CPU; also with the nearest pixel's depth instead of the interpolated one) "
+                          f"and open3d {o3d.__version__}'s VoxelBlockGrid (sparse) and "
                           "UniformTSDFVolume (dense), interleaved in one run; meshes from each one's "
                           "marching cubes, compared with the true cube surface.")
-    contenders = {"pointfield": fuse_pointfield, "open3d VoxelBlockGrid": fuse_open3d_blocks,
-                  "open3d UniformTSDFVolume": fuse_open3d}
+    contenders = {"pointfield": fuse_pointfield, "pointfield, nearest pixel": fuse_pointfield_nearest,
+                  "open3d VoxelBlockGrid": fuse_open3d_blocks, "open3d UniformTSDFVolume": fuse_open3d}
     meshers = {
         "pointfield": lambda volume: mesh_from_volume(volume).points,
+        "pointfield, nearest pixel": lambda volume: mesh_from_volume(volume).points,
         "open3d VoxelBlockGrid": lambda grid: grid.extract_triangle_mesh(weight_threshold=0.0).vertex.positions.numpy(),
         "open3d UniformTSDFVolume": lambda volume: np.asarray(volume.extract_triangle_mesh().vertices),
     }
