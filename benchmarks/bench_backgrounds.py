@@ -22,6 +22,7 @@ record goes to ``benchmarks/records/backgrounds.json``.
 from __future__ import annotations
 
 import argparse
+import shutil
 import statistics
 import sys
 from pathlib import Path
@@ -37,6 +38,7 @@ VARIANTS = {"random backgrounds": True, "fixed background": False}
 def train_lego(out: Path, steps: int, seed: int, random_background: bool) -> dict:
     from pointfield.fields.train import train
 
+    shutil.rmtree(out, ignore_errors=True)  # an earlier run of the benchmark's: training refuses a used folder
     return train(str(LEGO), model="ngp", out=out, steps=steps, downscale=8, holdout_every=10, seed=seed,
                  random_background=random_background, progress=False)
 

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -177,6 +178,7 @@ def lego_part(args, record: Record) -> None:
     }
     for (model, variant), run_training in contenders.items():
         out = args.out / f"lego-{model}-{variant.replace(', ', '-').replace(' ', '-')}"
+        shutil.rmtree(out, ignore_errors=True)  # an earlier run of the benchmark's: training refuses a used folder
         metrics = run_training(out)
         record.figures[f"lego/{model}/{variant}"] = {key: metrics.get(key) for key in (
             "psnr", "ssim", "opacity_error", "steps", "training_seconds")}
@@ -256,6 +258,7 @@ def main() -> int:
 
         for model in ("ngp", "splat"):
             run_path = args.out / f"{name}-{model}"
+            shutil.rmtree(run_path, ignore_errors=True)  # as for lego's runs
             if model == "ngp":
                 metrics = train_field(str(data), model="ngp", out=run_path, steps=100_000,
                                                         max_time=args.max_time, progress=False)

@@ -34,6 +34,7 @@ a GPU. The record goes to ``benchmarks/records/gpu.json`` (``gpu-geometry.json``
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -79,6 +80,7 @@ def train_scene_model(model: str, args, out: Path) -> dict:
     common = {"out": out, "max_time": getattr(args, f"{model}_seconds"), "eval_views": 10, "progress": False,
               "downscale": args.downscale, "holdout_every": 10, "device": args.device,
               "eval_every": getattr(args, f"{model}_eval_every"), "steps": getattr(args, f"{model}_steps")}
+    shutil.rmtree(out, ignore_errors=True)  # an earlier run of the benchmark's: training refuses a used folder
     started = time.perf_counter()
     options = dict(args.ngp_option) if model == "ngp" else None
     if model == "ngp":
@@ -219,6 +221,7 @@ def cube_geometry(args, out: Path) -> dict:
     from pointfield.scenes.synthetic import make_scene
 
     data = make_scene("textured-cube", out / "textured-cube", views=100, size=100, overwrite=True)
+    shutil.rmtree(out / "ngp", ignore_errors=True)  # an earlier run of the benchmark's: training refuses a used folder
     metrics = train(str(data), model="ngp", out=out / "ngp", steps=100_000, max_time=args.geometry_seconds,
                     device=args.device, progress=False)
     run = pointfield.load_run(out / "ngp", args.device)
