@@ -48,6 +48,7 @@ from pointfield.clouds.formats.las.reader import cloud_parts
 from pointfield.clouds.formats.registry import read
 from pointfield.clouds.mesh import Mesh
 from pointfield.clouds.ops import random_sample
+from pointfield.clouds.sensor import SensorView, sensor_view
 from pointfield.errors import FormatError, PointfieldError
 from pointfield.viewer.server import Viewer
 from pointfield.viz.render import normalised_colours, point_colours
@@ -86,6 +87,9 @@ class Prepared:
     format: str = ""
     faces: np.ndarray | None = None
     preview: bool = False
+    sensor: SensorView | None = None
+    """Where the file says the cloud was seen from (:func:`~pointfield.clouds.sensor.sensor_view`):
+    the page's camera starts there."""
 
     @property
     def count(self) -> int:
@@ -108,7 +112,8 @@ def prepare(cloud: PointCloud, budget: int, *, total: int | None = None, preview
     index = index[np.all(np.isfinite(points[index]), axis=1)]
     fields = {name: np.asarray(values)[index] for name, values in cloud.fields.items()
               if np.asarray(values).shape[:1] == points.shape[:1]}
-    return Prepared(points[index], fields, len(points) if total is None else total, low, high, kind, None, preview)
+    return Prepared(points[index], fields, len(points) if total is None else total, low, high, kind, None, preview,
+                    sensor_view(cloud))
 
 
 def read_prepared(path: Path, budget: int) -> Prepared | str:
@@ -302,9 +307,19 @@ class CloudView:
                 self._frame(low, high, origin)
             self.status.content = self._describe()
         if first:
-            centre = (low + high) / 2
-            size = float(np.linalg.norm(high - low)) or 1.0
-            self.viewer.first_look(centre, centre + size * np.array([0.3, -0.5, 0.4]), up=tuple(UP))
+            self._first_look(prepared)
+
+    def _first_look(self, prepared: Prepared) -> None:
+        """Start the page's camera where the sensor stood, upright as it saw the scene, when the file
+        says where that was; else obliquely from above, z up."""
+        if prepared.sensor is not None:
+            sensor = prepared.sensor
+            self.viewer.first_look(sensor.target, sensor.eye, up=tuple(sensor.up))
+            return
+        low, high = prepared.low, prepared.high
+        centre = (low + high) / 2
+        size = float(np.linalg.norm(high - low)) or 1.0
+        self.viewer.first_look(centre, centre + size * np.array([0.3, -0.5, 0.4]), up=tuple(UP))
 
     def _describe(self) -> str:
         shown = self.shown

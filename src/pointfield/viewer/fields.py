@@ -375,7 +375,7 @@ def show_run(viewer: Viewer, path: str | os.PathLike[str], name: str, *, device:
             renderer = BrowserRenderer(viewer, run.render, depth_range_of(run), full_size=full_size)
         renderer.warm_up()
         view = RunView(run, renderer.start())
-    viewer.first_look(*scene_framing(scene, back=1.0, lift=0.2))
+    viewer.first_look(*scene_framing(scene, back=1.0, lift=0.0))
     return view
 
 

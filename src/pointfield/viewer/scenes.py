@@ -55,14 +55,25 @@ def frustum_scale(scene: Scene) -> float:
 
 
 def scene_framing(scene: Scene, back: float = 2.0, lift: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(target, eye, up)`` for a first look at what the cameras look at: from ``back`` times
-    the first camera's distance, raised by ``lift`` times it (the defaults keep the cameras in
-    view; ``back=1, lift=0`` is the first camera's own viewpoint)."""
+    """``(target, eye, up)`` for a first look from the scene's first training camera
+    (:func:`first_training_camera`), along its own axis, from ``back`` times its distance to what
+    the cameras look at, raised by ``lift`` times that distance. ``up`` is the cameras' mean up
+    (:func:`~pointfield.scenes.paths.scene_centre_and_up`), so that the page orbits upright.
+    ``back=1, lift=0`` is that camera's own view, as its photo shows it (less any roll of its own);
+    the defaults step back and up so that its neighbours' frustums are in view too."""
     centre, up = scene_centre_and_up(scene)
-    first = scene.cameras.centers.double().numpy()[0]
-    distance = float(np.linalg.norm(first - centre)) or 1.0
-    eye = centre + back * (first - centre) + lift * distance * up
-    return centre, eye, up
+    index = first_training_camera(scene)
+    forward = scene.cameras.rotations.double().numpy()[index][:, 2]  # OpenCV axes: looking down +z
+    camera = scene.cameras.centers.double().numpy()[index]
+    distance = float(np.linalg.norm(centre - camera)) or 1.0
+    eye = camera - (back - 1) * distance * forward + lift * distance * up
+    return camera + distance * forward, eye, up
+
+
+def first_training_camera(scene: Scene) -> int:
+    """The first camera of the training split (in no held-out split), where a page of the scene starts."""
+    held_out = {int(index) for name in ("val", "test") for index in scene.splits.get(name, [])}
+    return next((index for index in range(len(scene)) if index not in held_out), 0)
 
 
 def vertical_fov(scene: Scene, index: int) -> float:

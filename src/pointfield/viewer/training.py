@@ -217,7 +217,7 @@ class TrainingView:
         device = next(model.parameters()).device
         run = live_run(self.directory, model, device)
         renderer = BrowserRenderer(self.viewer, run.render, depth_range_of(run), into_panel=True)
-        self.viewer.first_look(*scene_framing(run.scene, back=1.0, lift=0.2))
+        self.viewer.first_look(*scene_framing(run.scene, back=1.0, lift=0.0))
         self.renderer = renderer
 
     def _report(self, state: TrainingState, loss: float) -> None:
