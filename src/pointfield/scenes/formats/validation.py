@@ -115,7 +115,7 @@ def image_size(path: Path, where: str) -> tuple[int, int] | None:
     try:
         with Image.open(path) as image:
             return image.size
-    except Exception as error:  # Pillow raises many types (OSError, SyntaxError, ValueError, ...)
+    except Exception as error:  # noqa: BLE001 - re-raised as FormatError; Pillow raises many types (OSError, SyntaxError, ValueError, ...)
         raise FormatError(path, f"{where}: not a readable image ({type(error).__name__}: {error})") from None
 
 
