@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost clean
+.PHONY: demo test lint bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,9 +18,13 @@ $(BIN)/.installed: pyproject.toml
 demo: $(BIN)/.installed
 	$(BIN)/pointfield demo --out demo-output
 
+# Lint first (rules in pyproject.toml), so that a new finding fails CI before the tests run.
 # One worker per core (pytest-xdist), each folder's tests on one worker: tests/conftest.py.
-test: $(BIN)/.installed $(BIN)/.chromium
+test: lint $(BIN)/.chromium
 	$(BIN)/python -m pytest -q -n auto
+
+lint: $(BIN)/.installed
+	$(BIN)/ruff check src tests benchmarks
 
 # open3d's wheel links libusb; Debian machines without it get it from apt.
 $(BIN)/.open3d: $(BIN)/.installed
