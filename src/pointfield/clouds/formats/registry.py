@@ -33,6 +33,13 @@ class Format:
     ``aliases`` maps the generic names the command line uses (``ascii``, ``binary``,
     ``compressed``) onto them. ``holds_faces`` says whether the format stores a Mesh's faces,
     ``holds_records`` whether it stores :class:`Records` (fields without x, y, z).
+
+    A format that streams (:mod:`pointfield.clouds.formats.chunked`) also gives
+    ``open_chunks(path, **options)``, a :class:`~pointfield.clouds.formats.chunked.ChunkSource` for
+    the file or None when this file must be read whole, the names of the ``chunk_options`` it
+    takes (``columns`` for ``.bin``; ``bounds``, ``level``, ``resolution`` for COPC), and
+    ``chunk_writer(encoding)``, the :class:`~pointfield.clouds.formats.chunked.ChunkWriter` class
+    for an encoding or None when that encoding is written whole.
     """
 
     name: str
@@ -46,6 +53,9 @@ class Format:
     suffix_encodings: Mapping[str, str] = field(default_factory=dict)
     holds_faces: bool = False
     holds_records: bool = False
+    open_chunks: Callable[..., Any] | None = None
+    chunk_options: tuple[str, ...] = ()
+    chunk_writer: Callable[[str | None], type | None] | None = None
 
     def resolve_encoding(self, encoding: str | None, path: Path) -> str | None:
         if encoding is None:

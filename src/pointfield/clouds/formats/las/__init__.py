@@ -60,15 +60,33 @@ checked against the file's size before laspy, lazrs or LASzip allocate anything,
 lazrs / LASzip failure (including lazrs panics) becomes a :class:`FormatError` naming the file.
 
 Modules: ``layout`` (those checks), ``reader``, ``dimensions`` (which dimension each field is
-written to), ``writer``, ``library`` (laspy's, lazrs's and LASzip's errors as FormatErrors).
+written to), ``writer``, ``library`` (laspy's, lazrs's and LASzip's errors as FormatErrors), and
+``chunks`` (reading, COPC queries and writing a window of points at a time, for
+:mod:`pointfield.streaming`).
 """
 
+from pointfield.clouds.formats.las.chunks import (
+    CopcSource,
+    LasChunkWriter,
+    LasSource,
+    las_chunk_writer,
+    open_las_chunks,
+)
 from pointfield.clouds.formats.las.layout import is_las
 from pointfield.clouds.formats.las.reader import read_las
-from pointfield.clouds.formats.las.writer import write_las
+from pointfield.clouds.formats.las.writer import coordinates_fit, write_las
 from pointfield.clouds.formats.registry import Format, register
 
-__all__ = ["is_las", "read_las", "write_las"]
+__all__ = [
+    "CopcSource",
+    "LasChunkWriter",
+    "LasSource",
+    "coordinates_fit",
+    "is_las",
+    "open_las_chunks",
+    "read_las",
+    "write_las",
+]
 
 register(
     Format(
@@ -81,5 +99,8 @@ register(
         aliases={"binary": "las", "compressed": "laz"},
         signature=is_las,
         suffix_encodings={".laz": "laz"},
+        open_chunks=open_las_chunks,
+        chunk_options=("bounds", "level", "resolution"),
+        chunk_writer=las_chunk_writer,
     )
 )

@@ -139,6 +139,15 @@ def _three_floats(value: Any) -> np.ndarray | None:
     return array if array.shape == (3,) and np.all(np.isfinite(array)) else None
 
 
+def coordinates_fit(low: np.ndarray, high: np.ndarray, metadata: Mapping[str, Any]) -> bool:
+    """Whether points from ``low`` to ``high`` fit the int32 coordinates of ``metadata``'s LAS scales and
+    offsets, so that :func:`write_las` keeps them: then any subset of those points is written with them."""
+    scales, offsets = _three_floats(metadata.get("scales")), _three_floats(metadata.get("offsets"))
+    if scales is None or offsets is None or not np.all(scales > 0):
+        return False
+    return _in_int32(low, high, scales, offsets)
+
+
 def _in_int32(low: np.ndarray, high: np.ndarray, scales: np.ndarray, offsets: np.ndarray) -> bool:
     raw_low = np.round((low - offsets) / scales)
     raw_high = np.round((high - offsets) / scales)

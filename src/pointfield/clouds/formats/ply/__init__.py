@@ -48,9 +48,11 @@ than colours and normals are written as lists of K items. Ascii floats are writt
 shortest form that reads back to the same float32 / float64 value.
 
 The package reads like the format: ``header`` (the header's grammar and types), ``reader`` (the
-data section and how it maps onto pointfield objects), ``writer``.
+data section and how it maps onto pointfield objects), ``writer``, and ``chunks`` (the same,
+a window of vertices at a time, for :mod:`pointfield.streaming`).
 """
 
+from pointfield.clouds.formats.ply.chunks import PlyChunkWriter, open_ply_chunks, ply_chunk_writer
 from pointfield.clouds.formats.ply.header import (
     ENCODINGS,
     SPLAT_PROPERTIES,
@@ -61,7 +63,16 @@ from pointfield.clouds.formats.ply.reader import read_ply
 from pointfield.clouds.formats.ply.writer import write_ply
 from pointfield.clouds.formats.registry import Format, register
 
-__all__ = ["ENCODINGS", "SPLAT_PROPERTIES", "is_ply", "parse_header", "read_ply", "write_ply"]
+__all__ = [
+    "ENCODINGS",
+    "SPLAT_PROPERTIES",
+    "PlyChunkWriter",
+    "is_ply",
+    "open_ply_chunks",
+    "parse_header",
+    "read_ply",
+    "write_ply",
+]
 
 register(
     Format(
@@ -75,5 +86,7 @@ register(
         signature=is_ply,
         holds_records=True,
         holds_faces=True,
+        open_chunks=open_ply_chunks,
+        chunk_writer=ply_chunk_writer,
     )
 )
