@@ -10,12 +10,12 @@ Everything goes to a temporary file beside ``path`` that is renamed onto it when
 block ends without an exception; an exception (a killed job's KeyboardInterrupt included)
 removes it, and ``path`` is left as it was. Each format's chunk writer lives in its own package,
 registered beside its whole-file writer (:mod:`pointfield.clouds.formats.chunked`); this module
-asks the registry for it. The bytes are those :func:`pointfield.write` would
-write for the concatenated chunks, by the format's own writer code: each writer takes the
-layout (fields, types, LAS point format and extra dimensions) from the first chunk and holds
-every later chunk to it. One exception: a LAS / LAZ file of more than
-:attr:`~pointfield.clouds.formats.las.LasChunkWriter.WINDOW` points with extra dimensions, whose extra-bytes min / max (laspy's
-statistics, which depend on how points are split between its calls) can differ.
+asks the registry for it. The bytes are those :func:`pointfield.write` would write for the
+concatenated chunks, by the format's own writer code: each writer takes the layout (fields,
+types, LAS point format and extra dimensions) from the first chunk and holds every later chunk
+to it. One exception: a LAS / LAZ file of more than ``LasChunkWriter.WINDOW`` points with extra
+dimensions, whose extra-bytes min / max (laspy's statistics, which depend on how points are
+split between its calls) can differ.
 
 ===========================  ================================================================
 format                       how it streams
