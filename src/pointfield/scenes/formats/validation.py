@@ -19,7 +19,7 @@ import numpy as np
 from pointfield.errors import FormatError
 
 ROTATION_TOLERANCE = 1e-3
-"""Largest |R^T R - I| entry accepted as a rotation: datasets print poses as float32 (1e-7) or
+"""Largest ``|R^T R - I|`` entry accepted as a rotation: datasets print poses as float32 (1e-7) or
 with a few digits; a scaled or sheared matrix is off by far more."""
 
 MAX_IMAGE_SIDE = 1 << 16

@@ -41,7 +41,7 @@ Writing stores every field with its own dtype (ascii files declare types too, so
 in all three encodings). Types PLY has no name for are converted when no value changes (bool ->
 uchar, float16 -> float) and refused with a FormatError otherwise. PLY has no 64-bit integers:
 int64 / uint64 fields are written as uint or int (the source's signedness first) when every
-value fits in 32 bits, else as double when every value is exact in one (|v| <= 2**53), each with
+value fits in 32 bits, else as double when every value is exact in one (``|v| <= 2**53``), each with
 a warning naming the field and the type it reads back as; larger values are refused. Faces'
 vertex indices of any integer type are written as int without a warning. ``(N, K)`` fields other
 than colours and normals are written as lists of K items. Ascii floats are written in the
