@@ -174,6 +174,8 @@ class ChunkWriter:
         self.path = Path(path)
         self.format = format_of(self.path, for_writing=True)
         self.encoding = self.format.resolve_encoding(encoding, self.path)
+        if self.format.check_output is not None:
+            self.format.check_output(self.path)
         if self.needs_bounds and bounds is None:
             raise ValueError(f"{self.path}: a {type(self).__name__} needs the bounds of the points to come")
         self.bounds = bounds

@@ -39,7 +39,9 @@ class Format:
     the file or None when this file must be read whole, the names of the ``chunk_options`` it
     takes (``columns`` for ``.bin``; ``bounds``, ``level``, ``resolution`` for COPC), and
     ``chunk_writer(encoding)``, the :class:`~pointfield.clouds.formats.chunked.ChunkWriter` class
-    for an encoding or None when that encoding is written whole.
+    for an encoding or None when that encoding is written whole. ``check_output(path)`` raises a
+    FormatError for an output name the format refuses (LAS: ``.copc.laz``), before anything is
+    written.
     """
 
     name: str
@@ -56,6 +58,7 @@ class Format:
     open_chunks: Callable[..., Any] | None = None
     chunk_options: tuple[str, ...] = ()
     chunk_writer: Callable[[str | None], type | None] | None = None
+    check_output: Callable[[Path], None] | None = None
 
     def resolve_encoding(self, encoding: str | None, path: Path) -> str | None:
         if encoding is None:
@@ -142,6 +145,8 @@ def write(
     if fmt.write is None:
         raise FormatError(path, f"pointfield reads {fmt.name} but cannot write it")
     resolved = fmt.resolve_encoding(encoding, path)
+    if fmt.check_output is not None:
+        fmt.check_output(path)
     if isinstance(cloud, Records) and not fmt.holds_records:
         raise FormatError(
             path,

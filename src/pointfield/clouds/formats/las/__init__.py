@@ -37,7 +37,10 @@ Writing
     ``las:pointSourceId``, PDAL's ``PointSourceId`` or ``GpsTime`` -> ``point_source_id``,
     ``gps_time``), other names have ``:`` and non-ASCII characters replaced by ``_`` (numpy's
     buffers, through which laspy writes, refuse ``:``). One warning lists every such change.
-    :class:`Records` (no x, y, z) are refused by the registry, as for NPZ.
+    :class:`Records` (no x, y, z) are refused by the registry, as for NPZ. COPC is read, not
+    written: a ``.copc.laz`` output is refused with a FormatError that says so (the octree
+    ordering and hierarchy EVLR a COPC reader expects are not written); write ``.laz`` and convert
+    it with PDAL's ``writers.copc`` or untwine.
 
 Metadata (read, and used by the writer to write a LAS cloud back faithfully)
     ``scales``, ``offsets`` (3 floats each), ``las_version`` ("1.4"), ``las_point_format``
@@ -74,7 +77,7 @@ from pointfield.clouds.formats.las.chunks import (
 )
 from pointfield.clouds.formats.las.layout import is_las
 from pointfield.clouds.formats.las.reader import read_las
-from pointfield.clouds.formats.las.writer import coordinates_fit, write_las
+from pointfield.clouds.formats.las.writer import coordinates_fit, refuse_copc_output, write_las
 from pointfield.clouds.formats.registry import Format, register
 
 __all__ = [
@@ -102,5 +105,6 @@ register(
         open_chunks=open_las_chunks,
         chunk_options=("bounds", "level", "resolution"),
         chunk_writer=las_chunk_writer,
+        check_output=refuse_copc_output,
     )
 )
