@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost clean
+.PHONY: demo test lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,9 +18,18 @@ $(BIN)/.installed: pyproject.toml
 demo: $(BIN)/.installed
 	$(BIN)/pointfield demo --out demo-output
 
+# Lint and the API reference first, so that a new ruff finding or a broken reference fails CI.
 # One worker per core (pytest-xdist), each folder's tests on one worker: tests/conftest.py.
-test: $(BIN)/.installed $(BIN)/.chromium
+test: lint docs $(BIN)/.chromium
 	$(BIN)/python -m pytest -q -n auto
+
+lint: $(BIN)/.installed
+	$(BIN)/ruff check src tests benchmarks docs
+
+# The API reference (Sphinx autodoc + napoleon) from the docstrings into docs/_build/api/index.html. Warnings
+# are errors, and the build fails when a public class or function is missing from it (docs/api/conf.py).
+docs: $(BIN)/.installed
+	$(BIN)/python -m sphinx -b html -W --keep-going -q -j auto docs/api docs/_build/api
 
 # open3d's wheel links libusb; Debian machines without it get it from apt.
 $(BIN)/.open3d: $(BIN)/.installed
@@ -116,4 +125,4 @@ bench-gpu: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_gpu.py
 
 clean:
-	rm -rf $(VENV) demo-output bench-output
+	rm -rf $(VENV) demo-output bench-output docs/_build docs/api/generated

@@ -26,10 +26,11 @@ from importlib.metadata import version
 
 import numpy as np
 import psutil
-from harness import Record
 
 from pointfield.viewer.browser import VIEWPORT, chromium, open_page, wait_for
 from pointfield.viewer.server import start_viewer
+
+from harness import Record
 
 PHASE_SECONDS = 10.0
 

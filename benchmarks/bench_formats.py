@@ -110,8 +110,8 @@ def main() -> int:
             path = folder / name
             peer_reader = read_open3d if peer == "open3d" else read_laspy
             assert peer_reader(path) == read_pointfield(path) == args.points
-            timings = interleaved({peer: lambda: peer_reader(path), "pointfield": lambda: read_pointfield(path)},
-                                  args.repeats)
+            timings = interleaved({peer: lambda read=peer_reader, path=path: read(path),
+                                  "pointfield": lambda path=path: read_pointfield(path)}, args.repeats)
             ratio = timings["pointfield"].median / timings[peer].median
             memory = peak_memory_ratio(path)
             size_mb = path.stat().st_size / 1e6

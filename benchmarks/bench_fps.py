@@ -22,11 +22,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from harness import Record, interleaved
 from scipy.spatial import cKDTree
 
 import pointfield
 from pointfield.clouds.ops import farthest_point_sample, farthest_point_subset
+
+from harness import Record, interleaved
 
 KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti" / "semantickitti_seq00" / "000000.bin"
 GOAL_SPEED = 10.0

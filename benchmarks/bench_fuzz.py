@@ -21,8 +21,8 @@ from tqdm import tqdm
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from fuzzing import cases, generated_seeds, real_seeds, run_case
-from harness import Record
+from fuzzing import cases, generated_seeds, real_seeds, run_case  # noqa: E402 (tests/ is on the path from here on)
+from harness import Record  # noqa: E402
 
 SHARED_DATA = ROOT.parent / "shared" / "data"
 

@@ -50,7 +50,6 @@ from pathlib import Path
 import numpy as np
 import torch
 from bench_tsdf import nearest_pixel_depth
-from harness import Record
 
 import pointfield
 from pointfield.clouds.formats.registry import read
@@ -65,6 +64,8 @@ from pointfield.scenes.synthetic import make_scene
 from pointfield.splats.loss import GEOMETRY_WEIGHTS
 from pointfield.splats.train import DEFAULT_STEPS
 from pointfield.splats.train import train as train_splats
+
+from harness import Record
 
 LEGO = Path(__file__).resolve().parents[2] / "shared" / "data" / "nerf" / "lego_blender"
 GOAL_CHAMFER = 0.005

@@ -312,7 +312,7 @@ def memory(config: dict[str, int], size: int, args: argparse.Namespace) -> dict:
     request = {"config": config, "size": size, "views": TRAINING_VIEWS, "steps": args.memory_steps,
                "render_chunks": render_chunks, "backend": args.memory_backend, "device": args.device}
     completed = subprocess.run([sys.executable, __file__, "--memory-child", json.dumps(request)],
-                               capture_output=True, text=True, env=os.environ.copy())
+                               capture_output=True, text=True, env=os.environ.copy(), check=False)
     if completed.returncode != 0:
         raise SystemExit(f"memory measurement failed for {size}x{size}:\n{completed.stderr[-4000:]}")
     return json.loads(completed.stdout.strip().splitlines()[-1])

@@ -155,7 +155,7 @@ def speed(models: dict[str, nn.Module], batch: int, rounds: int, steps: int,
 
     results = {name: {} for name in models}
     for mode, run in (("train", train_steps), ("inference", infer_steps)):
-        timings = interleaved({name: (lambda name=name: run(name)) for name in models}, rounds)
+        timings = interleaved({name: (lambda name=name, run=run: run(name)) for name in models}, rounds)
         for name, timing in timings.items():
             results[name][mode] = batch * steps / timing.median
             results[name][f"{mode}_spread"] = timing.spread

@@ -28,10 +28,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pa_csv
-from harness import Record, interleaved
 
 import pointfield
 from pointfield.clouds.formats.ascii import write_rows
+
+from harness import Record, interleaved
 
 ROWS = 1000  # scanner rows (points per column); columns = points / ROWS
 TARGET_VS_PYARROW = 1.2

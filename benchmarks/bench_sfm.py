@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 from harness import Record
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import laspy
 import numpy as np
+
 from harness import ROOT, Record
 
 EXTENT = 2000.0  # metres: the generated area is EXTENT x EXTENT whatever the point count

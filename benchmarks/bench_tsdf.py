@@ -31,6 +31,7 @@ from unittest import mock
 
 import numpy as np
 import torch
+
 from harness import Record, interleaved
 
 BOX = ([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0])

@@ -46,7 +46,6 @@ from pathlib import Path
 import laspy
 import numpy as np
 import torch
-from harness import ROOT, Record, round_order
 
 from pointfield.viewer.browser import (
     SCENE_REGION,
@@ -57,6 +56,8 @@ from pointfield.viewer.browser import (
     screenshot,
     wait_for,
 )
+
+from harness import ROOT, Record, round_order
 
 OUTPUT = ROOT / "bench-output" / "viewer"
 LEGO = ROOT.parent / "shared" / "data" / "nerf" / "lego_blender"

@@ -1,5 +1,7 @@
 """The README's layout section is a true map of the tree, and the package root stays trimmed."""
 
+import ast
+import importlib.util
 import re
 import subprocess
 import sys
@@ -52,3 +54,38 @@ def test_importing_the_hash_grid_field_imports_nothing_that_imports_it_back(chec
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                             env=checkout_environment)
     assert result.stdout.strip() == "[]"
+
+
+def _imported_private_names(module: Path) -> list[tuple[int, str]]:
+    """``(line, "package.module._name")`` for each private name ``module`` imports from another package.
+
+    A package is a folder of modules: a module may use its own package's private helpers (the PLY
+    reader's, from the PLY chunk reader), never another's, so that a package's internals can change
+    without breaking its neighbours.
+    """
+    own = ".".join(module.relative_to(PACKAGE.parent).with_suffix("").parts[:-1])
+    found = []
+    for node in ast.walk(ast.parse(module.read_text(encoding="utf-8"), str(module))):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("pointfield"):
+            source = importlib.util.find_spec(node.module)
+            package = node.module if source.submodule_search_locations else node.module.rpartition(".")[0]
+            names = [(node.module.split("."), alias.name) for alias in node.names]
+        elif isinstance(node, ast.Import):
+            names = [(alias.name.split(".")[:-1], alias.name.split(".")[-1]) for alias in node.names
+                     if alias.name.startswith("pointfield")]
+            package = None
+        else:
+            continue
+        for parts, name in names:
+            private = [p for p in [*parts, name] if p.startswith("_") and not p.startswith("__")]
+            if private and (package or ".".join(parts)) != own:
+                found.append((node.lineno, ".".join([*parts, name])))
+    return found
+
+
+def test_no_module_imports_a_private_name_of_another_package():
+    # The streaming verbs once imported some 25 helpers private to the LAS, PCD and PLY packages; a format's
+    # chunk reader and writer are now public, registered beside its whole-file reader and writer.
+    offenders = [f"{module.relative_to(ROOT)}:{line}: {name}" for module in sorted(PACKAGE.rglob("*.py"))
+                 for line, name in _imported_private_names(module)]
+    assert offenders == [], "private names imported across packages:\n" + "\n".join(offenders)

@@ -12,10 +12,10 @@ The functions most people need first::
 
 from typing import Any
 
-from pointfield.clouds import Mesh, PointCloud, Records, read, write  # noqa: E402
-from pointfield.errors import FormatError, PointfieldError  # noqa: E402
+from pointfield.clouds import Mesh, PointCloud, Records, read, write
+from pointfield.errors import FormatError, PointfieldError
 from pointfield.streaming import read_chunks
-from pointfield.version import __version__  # noqa: E402
+from pointfield.version import __version__
 
 # The learning half needs torch; it is imported on first use so that reading a cloud stays quick.
 _LEARNING = {"load_run": "pointfield.runs", "classify": "pointfield.clouds.run", "segment": "pointfield.clouds.run"}

@@ -1,12 +1,12 @@
 """``load_run``: any run folder pointfield wrote, opened as the :class:`~pointfield.training.Run` of its kind.
 
-=========================  ====================================  =====================================
-``config.json`` task       opened as                             what it does besides ``metrics``
-=========================  ====================================  =====================================
-classify, segment          :class:`~pointfield.clouds.run.CloudRun`   ``evaluate(data)``, ``predict(files)``
-nerf (tiny, nerf, ngp)     :class:`~pointfield.fields.run.FieldRun`     ``render(cameras)``, ``evaluate()``
-splat                      :class:`~pointfield.splats.run.SplatRun`     ``render(cameras)``, ``evaluate()``
-=========================  ====================================  =====================================
+======================  ========================================  ======================================
+``config.json`` task    opened as                                 what it does besides ``metrics``
+======================  ========================================  ======================================
+classify, segment       :class:`~pointfield.clouds.run.CloudRun`  ``evaluate(data)``, ``predict(files)``
+nerf (tiny, nerf, ngp)  :class:`~pointfield.fields.run.FieldRun`  ``render(cameras)``, ``evaluate()``
+splat                   :class:`~pointfield.splats.run.SplatRun`  ``render(cameras)``, ``evaluate()``
+======================  ========================================  ======================================
 
 Example::
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import pointfield
+from pointfield.clouds.formats.las import chunks as las_chunks
 from pointfield.clouds.ops import voxel_downsample
 from pointfield.streaming import downsample, jobs, voxels
-from pointfield.streaming import writers as writers_module
 from pointfield.streaming.downsampling import random_sample
 from pointfield.streaming.memory import MemoryPlan
 from pointfield.streaming.voxels import voxel_nearest
@@ -91,7 +91,7 @@ def test_a_stale_las_header_costs_a_pass_not_a_wrong_result(tmp_path, data, writ
 
 def test_a_killed_job_leaves_no_output_and_a_rerun_skips_a_finished_one(tmp_path, data, monkeypatch, capsys):
     out = tmp_path / "out.laz"
-    real_write = writers_module.LasChunkWriter._write
+    real_write = las_chunks.LasChunkWriter._write
     calls = []
 
     def dying_write(self, cloud):
@@ -100,11 +100,11 @@ def test_a_killed_job_leaves_no_output_and_a_rerun_skips_a_finished_one(tmp_path
             raise KeyboardInterrupt
         real_write(self, cloud)
 
-    monkeypatch.setattr(writers_module.LasChunkWriter, "_write", dying_write)
+    monkeypatch.setattr(las_chunks.LasChunkWriter, "_write", dying_write)
     with pytest.raises(KeyboardInterrupt):
         downsample(data["laz"], out, 0.2, points=CHUNK)
     assert list(tmp_path.iterdir()) == []
-    monkeypatch.setattr(writers_module.LasChunkWriter, "_write", real_write)
+    monkeypatch.setattr(las_chunks.LasChunkWriter, "_write", real_write)
 
     assert not downsample(data["laz"], out, 0.2, points=CHUNK)["skipped"]
     finished = out.read_bytes()

@@ -14,6 +14,12 @@ from pointfield.streaming import StreamingFallback, open_writer
 CHUNK = 3_000
 
 
+def test_a_copc_output_is_refused_before_anything_is_written(tmp_path):
+    with pytest.raises(pointfield.FormatError, match="cannot write COPC"):
+        open_writer(tmp_path / "tiles.copc.laz", bounds=(np.zeros(3), np.ones(3)))
+    assert list(tmp_path.iterdir()) == []
+
+
 def write_both(path_whole, path_chunked, source, encoding=None, bounds=None):
     cloud = pointfield.read(source)
     with warnings.catch_warnings():

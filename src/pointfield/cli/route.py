@@ -1,4 +1,4 @@
-"""``pointfield route INPUT... [--task WORDS] [--json]``: which 3D representation fits, and the commands.
+"""``pointfield route INPUT [INPUT ...] [--task WORDS] [--json]``: which 3D representation fits, and the commands.
 
 A thin layer over :func:`pointfield.route.route` (imported when the command runs, so that other
 commands start fast).

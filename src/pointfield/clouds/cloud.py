@@ -9,10 +9,12 @@ Conventions shared by every reader and writer:
   for fields with K components (PCD ``COUNT > 1``, PLY list properties of fixed length).
   Canonical names are used where a format has the concept:
 
-  ``colors``   ``(N, 3)`` RGB or ``(N, 4)`` RGBA, in the file's dtype (uint8 for most files,
-               uint16 for LAS, float for files that store float colours)
-  ``normals``  ``(N, 3)``
-  ``intensity`` ``(N,)``
+  =============  ============================================================================
+  ``colors``     ``(N, 3)`` RGB or ``(N, 4)`` RGBA, in the file's dtype (uint8 for most files,
+                 uint16 for LAS, float for files that store float colours)
+  ``normals``    ``(N, 3)``
+  ``intensity``  ``(N,)``
+  =============  ============================================================================
 
   Any other field keeps the name it has in the file.
 - ``shape`` is ``(H, W)`` for organised clouds (row-major, ``H * W == N``), else ``None``.

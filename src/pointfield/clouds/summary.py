@@ -27,6 +27,7 @@ def describe(path: str | os.PathLike[str], **read_options: Any) -> dict[str, Any
 
     Keys:
 
+    =========================  ==================================================================
     ``path``, ``bytes``        the file and its size
     ``format``, ``encoding``   as the reader found them (``"pcd"``, ``"binary_compressed"``)
     ``kind``                   ``"cloud"``, ``"mesh"`` or ``"records"`` (a file without x/y/z)
@@ -43,6 +44,7 @@ def describe(path: str | os.PathLike[str], **read_options: Any) -> dict[str, Any
     ``face_field_components``  name -> components per face
     ``metadata``               the rest of what the file says (viewpoint, LAS scales, comments),
                                keeping only JSON-representable values of modest size
+    =========================  ==================================================================
 
     ``read_options`` go to :func:`pointfield.read` (e.g. ``columns=5`` for a nuScenes scan).
     """

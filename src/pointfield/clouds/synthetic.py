@@ -4,16 +4,16 @@ Every generator is vectorised numpy and seedable: the same arguments give the sa
 bit. Points are float32; fields use the dtypes real files use (``colors`` uint8, ``normals`` and
 ``intensity`` float32, ``ring`` uint8).
 
-======================  ============================================================  =========
-generator               what it is                                                    frame
-======================  ============================================================  =========
-:func:`sphere`          points on a sphere, with normals and colours from the normals  any
-:func:`torus`           points on a torus, coloured by the angle around its axis       z up
-:func:`cube_surface`    points on the six faces of a cube, one colour per face         any
-:func:`lidar_scan`      a spinning 32-beam lidar in a street: intensity and ring       z up
-:func:`depth_camera`    an organised (H, W) RGB-D frame with NaN holes                 y down
-:func:`icosphere`       a triangle mesh of a sphere, with vertex normals               any
-======================  ============================================================  =========
+====================  =============================================================  ======
+generator             what it is                                                     frame
+====================  =============================================================  ======
+:func:`sphere`        points on a sphere, with normals and colours from the normals  any
+:func:`torus`         points on a torus, coloured by the angle around its axis       z up
+:func:`cube_surface`  points on the six faces of a cube, one colour per face         any
+:func:`lidar_scan`    a spinning 32-beam lidar in a street: intensity and ring       z up
+:func:`depth_camera`  an organised (H, W) RGB-D frame with NaN holes                 y down
+:func:`icosphere`     a triangle mesh of a sphere, with vertex normals               any
+====================  =============================================================  ======
 """
 
 from __future__ import annotations
@@ -255,7 +255,7 @@ def depth_camera(height: int = 120, width: int = 160, seed: int = 0) -> PointClo
     Camera frame as OpenCV and PCL: x right, y down, z forward; the camera is 0.8 m above the
     floor with focal ``0.8 * width`` pixels. Pixel (row v, column u) is point ``v * width + u``,
     so ``shape == (height, width)``. As a real sensor, pixels return NaN where nothing is within
-    4 m (beside the wall), where the surface is seen at a grazing angle (|cos| < 0.2), and at 1 %
+    4 m (beside the wall), where the surface is seen at a grazing angle (``|cos| < 0.2``), and at 1 %
     random dropouts. Depth noise grows with the square of the depth (1.5 mm at 1 m).
 
     Fields: ``colors`` (N, 3) uint8 (0 at NaN points).

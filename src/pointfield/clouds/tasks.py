@@ -44,6 +44,7 @@ from pointfield.clouds.datasets import (
     modelnet_source,
 )
 from pointfield.clouds.models import MODEL_NAMES, MODEL_OPTIONS, build_model, count_parameters
+from pointfield.clouds.shapes import SyntheticShapes
 from pointfield.clouds.transforms import (
     Compose,
     NormaliseScale,
@@ -52,7 +53,6 @@ from pointfield.clouds.transforms import (
     RandomShift,
     SamplePoints,
 )
-from pointfield.clouds.shapes import SyntheticShapes
 from pointfield.errors import PointfieldError
 from pointfield.metrics import (
     accuracy,

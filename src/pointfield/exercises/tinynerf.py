@@ -115,12 +115,12 @@ def _write_report(out: Path, result: dict[str, Any], strip_epochs: list[int], ep
         "",
         "Regenerate with `pointfield nerf exercise --out DIR` (seed 0).",
         "",
-        f"Scene: the built-in cube, {result['views']} views of {result['size']} x {result['size']} pixels "
-        f"on a sphere of cameras ({result['training_rays']:,} training rays; test views held out). "
-        f"Model: TinyNeRF (4 x 128 trunk, density head, view-dependent colour head), "
-        f"{EXERCISE_SAMPLES} stratified samples per ray, {EXERCISE_BATCH} rays per step, Adam at "
-        f"{EXERCISE_LEARNING_RATE:g} decayed to a tenth. An **epoch** is one pass over all training rays "
-        f"({result['steps_per_epoch']} steps).",
+        (f"Scene: the built-in cube, {result['views']} views of {result['size']} x {result['size']} pixels "
+         f"on a sphere of cameras ({result['training_rays']:,} training rays; test views held out). "
+         f"Model: TinyNeRF (4 x 128 trunk, density head, view-dependent colour head), "
+         f"{EXERCISE_SAMPLES} stratified samples per ray, {EXERCISE_BATCH} rays per step, Adam at "
+         f"{EXERCISE_LEARNING_RATE:g} decayed to a tenth. An **epoch** is one pass over all training rays "
+         f"({result['steps_per_epoch']} steps)."),
         "",
         "| epoch | training loss (MSE, epoch mean) | held-out PSNR (dB, first test view) |",
         "|---:|---:|---:|",
@@ -129,20 +129,20 @@ def _write_report(out: Path, result: dict[str, Any], strip_epochs: list[int], ep
     recognisable = result["recognisable_epoch"]
     lines += [
         "",
-        f'**Recognisable** -- defined here as the first epoch whose held-out PSNR reaches '
-        f"{RECOGNISABLE_PSNR:.0f} dB: "
-        + (f"epoch {recognisable}." if recognisable is not None else f"not reached in {epochs} epochs."),
+        (f'**Recognisable** -- defined here as the first epoch whose held-out PSNR reaches '
+         f"{RECOGNISABLE_PSNR:.0f} dB: "
+         + (f"epoch {recognisable}." if recognisable is not None else f"not reached in {epochs} epochs.")),
         "",
-        f"After {final['steps']} steps ({final['seconds']:.0f} s of training on "
-        f"{platform.machine()} with {os.cpu_count()} CPU core(s) visible): held-out PSNR "
-        f"{final['psnr']:.2f} dB, SSIM {final['ssim']:.3f} over {final['views']} test view(s).",
+        (f"After {final['steps']} steps ({final['seconds']:.0f} s of training on "
+         f"{platform.machine()} with {os.cpu_count()} CPU core(s) visible): held-out PSNR "
+         f"{final['psnr']:.2f} dB, SSIM {final['ssim']:.3f} over {final['views']} test view(s)."),
         "",
         f"Held-out view at epochs {', '.join(map(str, strip_epochs))}, then the ground truth:",
         "",
         "![held-out renders](strip.png)",
         "",
-        "Per-epoch numbers: `run/metrics.jsonl`; curves: `run/training_curves.png`; final renders "
-        "beside the ground truth (colour, depth, opacity): `run/heldout/`.",
+        ("Per-epoch numbers: `run/metrics.jsonl`; curves: `run/training_curves.png`; final renders "
+         "beside the ground truth (colour, depth, opacity): `run/heldout/`."),
         "",
     ]
     with atomic_path(out / "REPORT.md") as tmp:

@@ -64,7 +64,7 @@ CUDA devices, with the steps no finer than a quarter of a pixel
 (:func:`~pointfield.fields.scene_box.steps_a_pixel_allows`). A GPU pays per byte, not per random
 access (see :class:`InstantNGP`): on one H100, lego at 800 x 800 reached 35.3 dB held out after
 115 s of training and 36.4 dB after 233 s with these, where the CPU's defaults stopped at 31.2
-dB (docs/gpu.md)."""
+dB (benchmarks/previous-runs.md, "The GPU leases", third lease)."""
 
 
 class NGPField(nn.Module):

@@ -39,7 +39,8 @@ def steps_a_pixel_allows(scene, box) -> int:
     steps are a fourteenth of a pixel), the hash-grid field stayed a semi-transparent fog
     (held-out 22.3 dB after 400 steps on the CPU, 21.5 dB after 18 s on an H200) where 256
     steps (about a quarter of a pixel) reached 30.3 and 32.9 dB; lego at 100 x 100 (a loose
-    box, a fifth of a pixel) trains with 1,024 (docs/gpu.md).
+    box, a fifth of a pixel) trains with 1,024 (benchmarks/previous-runs.md, "The GPU leases", fourth
+    lease).
     """
     box = np.asarray(box, dtype=np.float64).reshape(2, 3)
     cameras = scene.cameras

@@ -2,7 +2,7 @@
 
 A grid of voxels over a box, each holding a running mean of its signed distance to the surfaces
 the depth maps saw, truncated to ``[-1, 1]`` in units of ``truncation``, and of their colour. For
-a voxel at world point ``x`` and a view with z-depth map ``D``:
+a voxel at world point ``x`` and a view with z-depth map ``D``::
 
     (u, v), z = project(x)                      where it falls in the image, its depth along the axis
     sdf      = D(u, v) - z                      positive in front of the surface, negative behind

@@ -1,17 +1,17 @@
 """What the router was given: each path inspected cheaply -- headers, names and sizes.
 
-==========  ===============================================================  ==========================
-kind        what                                                             found by
-==========  ===============================================================  ==========================
+==========  ================================================================  =========================
+kind        what                                                              found by
+==========  ================================================================  =========================
 ``cloud``   one point-cloud file (PLY, PCD, LAS/LAZ, E57, XYZ/PTS, NPY, ...)  the format registry
-``mesh``    one file with faces (PLY, OFF)                                   its face count
+``mesh``    one file with faces (PLY, OFF)                                    its face count
 ``splats``  a Gaussian-splat ``.ply`` (``f_dc_*``, ``opacity``, ``scale_*``)  its vertex properties
-``clouds``  a folder of clouds / meshes (one subfolder per class), or files  ``CloudFolder``'s layouts
-``photos``  photos without poses: image files, or a folder of them           their suffixes
-``video``   a video file                                                     its suffix (and ffmpeg)
-``scene``   a posed-image dataset: Blender, nerfstudio, LLFF, COLMAP, npz    the scene format registry
-``run``     a run folder: classify, segment, nerf or splat                   ``config.json``'s task
-==========  ===============================================================  ==========================
+``clouds``  a folder of clouds / meshes (one subfolder per class), or files   ``CloudFolder``'s layouts
+``photos``  photos without poses: image files, or a folder of them            their suffixes
+``video``   a video file                                                      its suffix (and ffmpeg)
+``scene``   a posed-image dataset: Blender, nerfstudio, LLFF, COLMAP, npz     the scene format registry
+``run``     a run folder: classify, segment, nerf or splat                    ``config.json``'s task
+==========  ================================================================  =========================
 
 Files with a header (PLY, PCD, LAS / LAZ, E57, NPY, NPZ) are described from it alone, and a
 ``.bin`` scan from its size and a sample of its values (KITTI's 4 columns or nuScenes' 5), so a

@@ -26,13 +26,17 @@ Projection
     distorted coordinates ``(x_d, y_d) = distort(x, y)``, and pixel
     ``(fx * x_d + cx, fy * y_d + cy)``.
 Camera models (COLMAP / nerfstudio names)
-    ``PINHOLE``         no distortion.
-    ``OPENCV``          radial-tangential, coefficients (k1, k2, p1, p2, k3), r^2 = x^2 + y^2:
-                        ``x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)``
-                        ``y_d = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y``
-    ``OPENCV_FISHEYE``  equidistant fisheye, coefficients (k1, k2, k3, k4), theta = atan(r):
-                        ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``,
-                        ``(x_d, y_d) = (theta_d / r) (x, y)``.
+    ``PINHOLE``
+        no distortion.
+    ``OPENCV``
+        radial-tangential, coefficients (k1, k2, p1, p2, k3), r^2 = x^2 + y^2:
+        ``x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)``,
+        ``y_d = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y``.
+    ``OPENCV_FISHEYE``
+        equidistant fisheye, coefficients (k1, k2, k3, k4), theta = atan(r):
+        ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``,
+        ``(x_d, y_d) = (theta_d / r) (x, y)``.
+
     Undistortion (pixel -> ray) has no closed form; it runs Newton iterations (at most 10, until
     every step is below 1e-12) and is that exact where the distortion polynomial is monotonic.
 Rays
@@ -540,7 +544,7 @@ def _fisheye_polynomial(theta: torch.Tensor, coefficients: torch.Tensor) -> torc
 
 
 def undistort_fisheye_angle(theta_distorted: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
-    """Solve ``theta (1 + k1 theta^2 + ... + k4 theta^8) = theta_d`` for theta in [0, pi] by Newton's method."""
+    """Solve ``theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8) = theta_d`` for theta in [0, pi] by Newton's method."""
     k1, k2, k3, k4 = coefficients.unbind(-1)
     theta = theta_distorted.clamp(0, torch.pi)
     for _ in range(UNDISTORT_ITERATIONS):

@@ -274,7 +274,7 @@ def read_image_file(path: Path, where: str) -> np.ndarray:
         return np.asarray(iio.imread(path))
     except FileNotFoundError:
         raise FormatError(path, f"{where}: image file not found") from None
-    except Exception as error:  # decoders raise anything from OSError to SyntaxError on bad bytes
+    except Exception as error:  # noqa: BLE001 - re-raised as FormatError; decoders raise anything from OSError to SyntaxError on bad bytes
         raise FormatError(path, f"{where}: cannot decode image ({type(error).__name__}: {error})") from None
 
 

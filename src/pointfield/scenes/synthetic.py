@@ -168,7 +168,7 @@ class Sphere:
     texture: CellTexture | None = None
 
     def intersect(self, origins: torch.Tensor, directions: torch.Tensor) -> Hit:
-        """Nearest t > 0 of |o + t d - c|^2 = r^2 for unit d: t = -b -+ sqrt(b^2 - (|o - c|^2 - r^2))."""
+        """Nearest t > 0 of ``|o + t d - c|^2 = r^2`` for unit d: ``t = -b -+ sqrt(b^2 - (|o - c|^2 - r^2))``."""
         offset = origins - torch.tensor(self.center, dtype=origins.dtype)
         b = (offset * directions).sum(-1)
         discriminant = b * b - ((offset * offset).sum(-1) - self.radius**2)

@@ -86,8 +86,8 @@ def format_scene_info(info: dict[str, Any]) -> str:
         f"{info['path']}: {info['format']} scene",
         f"  frames    {info['frames']} with images ({info['frames_listed']} listed); splits: {splits}",
         f"  images    {size}",
-        f"  camera    {info['camera_model']}, fx {shown(info['fx'])}, fy {shown(info['fy'])}, "
-        f"cx {shown(info['cx'])}, cy {shown(info['cy'])}",
+        (f"  camera    {info['camera_model']}, fx {shown(info['fx'])}, fy {shown(info['fy'])}, "
+         f"cx {shown(info['cx'])}, cy {shown(info['cy'])}"),
     ]
     if distortion:
         lines.append(f"  distortion {distortion}")

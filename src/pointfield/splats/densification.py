@@ -187,7 +187,7 @@ def append_splats(gaussians: Gaussians, optimizer: torch.optim.Optimizer, new: d
         addition = new[name]
         replace_parameter(
             gaussians, optimizer, name,
-            lambda value: torch.cat([value, torch.zeros_like(addition, dtype=value.dtype)]),
+            lambda value, addition=addition: torch.cat([value, torch.zeros_like(addition, dtype=value.dtype)]),
             torch.cat([getattr(gaussians, name).detach(), addition.to(getattr(gaussians, name).dtype)]),
         )
 

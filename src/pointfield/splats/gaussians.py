@@ -3,17 +3,17 @@
 Each of the N Gaussians is stored the way the original 3D Gaussian splatting code (and every
 standard splat ``.ply``) stores it, so that optimisation is unconstrained:
 
-==================  ==============  =============================================================
-parameter           shape           meaning
-==================  ==============  =============================================================
-``means``           ``(N, 3)``      centre in world coordinates
-``quats``           ``(N, 4)``      rotation as a quaternion **wxyz**, not necessarily unit:
-                                    it is normalised wherever it is used
-``log_scales``      ``(N, 3)``      log of the standard deviations along the rotated axes
-``opacity_logits``  ``(N,)``        ``opacity = sigmoid(opacity_logit)``
-``sh_dc``           ``(N, 1, 3)``   degree-0 SH coefficient per colour channel
-``sh_rest``         ``(N, K-1, 3)`` higher SH coefficients, K = (sh_degree + 1)^2
-==================  ==============  =============================================================
+==================  ===============  ========================================================
+parameter           shape            meaning
+==================  ===============  ========================================================
+``means``           ``(N, 3)``       centre in world coordinates
+``quats``           ``(N, 4)``       rotation as a quaternion **wxyz**, not necessarily unit:
+                                     it is normalised wherever it is used
+``log_scales``      ``(N, 3)``       log of the standard deviations along the rotated axes
+``opacity_logits``  ``(N,)``         ``opacity = sigmoid(opacity_logit)``
+``sh_dc``           ``(N, 1, 3)``    degree-0 SH coefficient per colour channel
+``sh_rest``         ``(N, K-1, 3)``  higher SH coefficients, K = (sh_degree + 1)^2
+==================  ===============  ========================================================
 
 The covariance is ``Sigma = R S S^T R^T`` with ``R`` the rotation of the normalised quaternion
 and ``S = diag(exp(log_scales))``. ``active_sh_degree`` (0 .. ``sh_degree``) is how many SH bands

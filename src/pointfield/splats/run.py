@@ -1,9 +1,9 @@
 """Rendering, evaluating and exporting Gaussian splats: a trained run, or a splat ``.ply``.
 
-========================================================  ====================================
+=========================================================  ==============
 ``pointfield splat render RUN|scene.ply [--scene S] ...``  :func:`render`
 ``pointfield splat export RUN --out scene.ply``            :func:`export`
-========================================================  ====================================
+=========================================================  ==============
 
 :class:`SplatRun` is what :func:`pointfield.load_run` opens for a splat run; it renders any
 camera as every scene run does (:class:`~pointfield.scenes.run.SceneRun`). Depth is the

@@ -17,8 +17,11 @@ The pieces, in the order data flows through them:
 ``distributed.py``     where a job runs: here, or on a Dask cluster, by file or by piece and tile
 ``memory.py``          the ``--memory`` budget, shared between chunks and running state
 ``jobs.py``            a verb's job (inputs, budget, cluster), skipped outputs, scratch, progress
-``arrays.py``          per-column reductions of ``(N, 3)`` chunks, faster than numpy's per-axis ones
 =====================  ====================================================================
+
+How each format is read and written in windows is that format's business: its package registers
+a chunk reader and writer beside its whole-file ones (:mod:`pointfield.clouds.formats.chunked`),
+and ``chunks.py`` and ``writers.py`` ask the registry for them.
 
 Every verb gives the result of its in-memory definition (``clouds.ops.voxel_downsample``,
 :func:`~.cropping.crop_cloud`, :func:`~.tiling.tile_cloud`, ...) exactly, for any chunk size, any

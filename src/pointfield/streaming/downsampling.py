@@ -26,10 +26,10 @@ from typing import Any
 
 import numpy as np
 
+from pointfield.clouds.arrays import corners, finite_corners
 from pointfield.clouds.cloud import PointCloud
 from pointfield.errors import PointfieldError
 from pointfield.streaming import distributed
-from pointfield.streaming.arrays import corners, finite_corners
 from pointfield.streaming.chunks import open_source
 from pointfield.streaming.jobs import (
     Job,

@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from pointfield.clouds.arrays import finite_corners
 from pointfield.clouds.cloud import PointCloud
 from pointfield.streaming import distributed
-from pointfield.streaming.arrays import finite_corners
 from pointfield.streaming.chunks import ChunkSource, open_source
 from pointfield.streaming.memory import (
     DEFAULT_MEMORY,

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from pointfield.clouds.cloud import PointCloud
-from pointfield.clouds.formats.las.writer import _in_int32, _three_floats
+from pointfield.clouds.formats.las import coordinates_fit
 from pointfield.streaming import distributed
 from pointfield.streaming.chunks import ChunkSource, open_source
 from pointfield.streaming.jobs import Job, indexed_chunks, progress_bar, scratch_folder
@@ -38,15 +38,13 @@ def writer_bounds(sources: list[ChunkSource]) -> tuple[np.ndarray, np.ndarray] |
     from its own bounds. Otherwise None: the writer waits for the points' own bounds.
     """
     hints = [source.bounds_hint() for source in sources]
-    metadata = sources[0].metadata
-    scales, offsets = _three_floats(metadata.get("scales")), _three_floats(metadata.get("offsets"))
-    if any(h is None for h in hints) or scales is None or offsets is None or not np.all(scales > 0):
+    if any(h is None for h in hints):
         return None
     low = np.min([h[0] for h in hints], axis=0)
     high = np.max([h[1] for h in hints], axis=0)
     if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))):
         return None
-    return (low, high) if _in_int32(low, high, scales, offsets) else None
+    return (low, high) if coordinates_fit(low, high, sources[0].metadata) else None
 
 
 def select_to_file(job: Job, out: Path, rule: Rule, encoding: str | None, what: str) -> int:

@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from pointfield.clouds.arrays import finite_corners
 from pointfield.clouds.cloud import PointCloud
 from pointfield.streaming import distributed
-from pointfield.streaming.arrays import finite_corners
 from pointfield.streaming.chunks import open_source
 from pointfield.streaming.jobs import indexed_chunks, progress_bar, streaming_job
 from pointfield.streaming.memory import DEFAULT_MEMORY

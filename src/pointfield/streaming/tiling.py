@@ -24,10 +24,10 @@ from typing import Any
 import numpy as np
 
 from pointfield.atomic import atomic_path
+from pointfield.clouds.arrays import finite_corners
 from pointfield.clouds.cloud import PointCloud
 from pointfield.errors import PointfieldError
 from pointfield.streaming import distributed
-from pointfield.streaming.arrays import finite_corners
 from pointfield.streaming.chunks import open_source
 from pointfield.streaming.jobs import (
     Job,

@@ -41,9 +41,9 @@ from typing import Any
 
 import numpy as np
 
+from pointfield.clouds.arrays import finite_rows
 from pointfield.clouds.cloud import PointCloud
 from pointfield.errors import PointfieldError
-from pointfield.streaming.arrays import finite_rows
 from pointfield.streaming.spill import Spill
 
 MODES = ("centroid", "nearest")

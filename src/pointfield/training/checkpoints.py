@@ -81,7 +81,7 @@ def load_checkpoint(
         raise PointfieldError(f"{path}: no such checkpoint")
     try:
         payload = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as error:  # torch raises many types here (unpickling, zip, EOF, runtime)
+    except Exception as error:  # noqa: BLE001 - re-raised as PointfieldError; torch raises many types here (unpickling, zip, EOF, runtime)
         raise PointfieldError(
             f"{path}: not a readable pointfield checkpoint ({type(error).__name__}: "
             f"{str(error).splitlines()[0] if str(error) else 'no detail'})"

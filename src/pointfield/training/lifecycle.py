@@ -32,11 +32,11 @@ from typing import Any
 import torch
 from torch import nn
 
+from pointfield.devices import pick_device
 from pointfield.errors import PointfieldError
 from pointfield.training import distributed as processes
 from pointfield.training.checkpoints import load_checkpoint, restore
 from pointfield.training.loop import fit
-from pointfield.devices import pick_device
 from pointfield.training.run import Run, RunDirectory
 from pointfield.training.task import Task
 

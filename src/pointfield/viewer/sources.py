@@ -1,15 +1,14 @@
 """What each PATH given to ``pointfield view`` is, and the module that shows it.
 
-==========================================  ========  ===========================================
-PATH                                        kind      shown by
-==========================================  ========  ===========================================
-a cloud or mesh file, any format it reads   cloud     :mod:`pointfield.viewer.clouds`
-a splat ``.ply`` (``f_dc_0`` ... ``rot_3``)  splats    :mod:`pointfield.viewer.splats`
-a scene folder (any format ``scene info``    scene     :mod:`pointfield.viewer.scenes`
-reads), or its ``transforms*.json``
-a splat run folder                          run       :mod:`pointfield.viewer.splats` (+ server render)
-a nerf run folder (tiny, nerf, ngp)         run       :mod:`pointfield.viewer.fields`
-==========================================  ========  ===========================================
+===========================================  ======  =================================================================
+PATH                                         kind    shown by
+===========================================  ======  =================================================================
+a cloud or mesh file, any format it reads    cloud   :mod:`pointfield.viewer.clouds`
+a splat ``.ply`` (``f_dc_0`` ... ``rot_3``)  splats  :mod:`pointfield.viewer.splats`
+a scene folder, or its ``transforms*.json``  scene   :mod:`pointfield.viewer.scenes` (any format ``scene info`` reads)
+a splat run folder                           run     :mod:`pointfield.viewer.splats` (+ server render)
+a nerf run folder (tiny, nerf, ngp)          run     :mod:`pointfield.viewer.fields`
+===========================================  ======  =================================================================
 
 Every PATH is checked before the server starts, so a bad one is the one-line error of every
 other command (``pointfield: error: scan.xyz: no such file``).

@@ -70,7 +70,7 @@ def view_panel(
     view: dict[str, np.ndarray], near: float, far: float, truth: np.ndarray | None = None,
     outputs: Sequence[str] = PANELS,
 ) -> np.ndarray:
-    """[ground truth |] the ``outputs``' pictures (colour | depth | opacity) side by side, ``(H, k W, 3)`` uint8."""
+    """``[ground truth |]`` the ``outputs``' pictures (``colour | depth | opacity``) side by side, ``(H, k W, 3)`` uint8."""
     panels = [] if truth is None else [to_uint8(truth)]
     panels += [picture(view, name, near, far) for name in outputs]
     return np.concatenate(panels, axis=1)

@@ -147,6 +147,16 @@ def test_copc_reads_as_laz_and_says_so(shared_data):
     assert not any(vlr["user_id"] == "copc" for vlr in metadata["las_vlrs"] + metadata["las_evlrs"])
 
 
+def test_a_copc_output_is_refused_rather_than_written_as_plain_laz(shared_data, tmp_path):
+    # COPC is read, not written: a .copc.laz without the octree hierarchy would fool COPC readers.
+    cloud = pointfield.read(las_file(shared_data, "simple.copc.laz"))
+    with pytest.raises(FormatError, match=r"out\.copc\.laz: pointfield cannot write COPC.*write \.laz"):
+        pointfield.write(tmp_path / "out.copc.laz", cloud)
+    assert list(tmp_path.iterdir()) == []
+    pointfield.write(tmp_path / "out.laz", cloud)  # the same cloud as plain LAZ is fine
+    assert len(pointfield.read(tmp_path / "out.laz")) == len(cloud)
+
+
 def test_crs_records_are_kept_in_metadata(shared_data):
     metadata = pointfield.read(las_file(shared_data, "autzen_trim.laz")).metadata
     kept = {(vlr["user_id"], vlr["record_id"]) for vlr in metadata["las_vlrs"]}

@@ -23,9 +23,12 @@ def shared_feature_images(count: int, shared: int, own: int, seed: int) -> list[
     """Images on a ring: image i shares ``shared`` features with each of i-1 and i+1 (slightly noisy)."""
     rng = np.random.default_rng(seed)
     links = [rng.random((shared, 128)).astype(np.float32) for _ in range(count)]  # link i: between i and i+1
+
+    def noise(a: np.ndarray) -> np.ndarray:
+        return a + 0.02 * rng.random(a.shape).astype(np.float32)
+
     images = []
     for i in range(count):
-        noise = lambda a: a + 0.02 * rng.random(a.shape).astype(np.float32)
         images.append(
             np.concatenate([noise(links[i]), noise(links[i - 1]), rng.random((own, 128)).astype(np.float32)])
         )

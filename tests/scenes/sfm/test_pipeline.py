@@ -17,11 +17,11 @@ from PIL import Image
 
 pycolmap = pytest.importorskip("pycolmap")
 
-from pointfield.cli import main
-from pointfield.scenes import read_scene, synthetic_scene
-from pointfield.scenes.alignment import pose_errors
-from pointfield.scenes.formats.colmap.folder import read_colmap_model
-from pointfield.scenes.sfm import pipeline
+from pointfield.cli import main  # noqa: E402 (imported once pycolmap is known to be there)
+from pointfield.scenes import read_scene, synthetic_scene  # noqa: E402
+from pointfield.scenes.alignment import pose_errors  # noqa: E402
+from pointfield.scenes.formats.colmap.folder import read_colmap_model  # noqa: E402
+from pointfield.scenes.sfm import pipeline  # noqa: E402
 
 VIEWS, SIZE, SMALL_SIZE = 16, 240, 200
 """Sixteen views on a ring at 30 degrees elevation (22.5 degrees apart, as a walk-around), half of

@@ -5,13 +5,13 @@ Every dataset here yields ``(cloud, label)``: a :class:`PointCloud` (after the d
 segmentation, travel in the cloud as the integer field ``label`` (names in ``dataset.parts``),
 so they follow their points through sampling and augmentation.
 
-==================  ==========================================================================
-:class:`CloudFolder`  a folder of files in any format :func:`pointfield.read` reads, one
-                    subfolder per class, optional ``train`` / ``test`` subfolders
-:class:`ModelNet`   ModelNet10 / 40 from raw OFF meshes, ``modelnet40_normal_resampled`` text
-                    files, or ``ply_hdf5_2048`` HDF5 files
+==================================================  =========================================================================
+:class:`CloudFolder`                                a folder of files in any format :func:`pointfield.read` reads, one
+                                                    subfolder per class, optional ``train`` / ``test`` subfolders
+:class:`ModelNet`                                   ModelNet10 / 40 from raw OFF meshes, ``modelnet40_normal_resampled`` text
+                                                    files, or ``ply_hdf5_2048`` HDF5 files
 :class:`~pointfield.clouds.shapes.SyntheticShapes`  procedural shapes (built-in default)
-==================  ==========================================================================
+==================================================  =========================================================================
 
 :class:`CloudCollate` turns a list of samples into a :class:`CloudBatch`: points padded to the
 largest cloud, with a mask, so clouds of different sizes batch together.

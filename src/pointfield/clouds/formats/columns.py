@@ -111,7 +111,7 @@ def cloud_to_columns(
 def group_components(
     columns: Mapping[str, np.ndarray], min_components: int = 1
 ) -> dict[str, np.ndarray]:
-    """Join columns ``name[0] .. name[K-1]``, consecutive and in that order, into one ``(N, K)``
+    """Join columns ``name[0]`` to ``name[K-1]``, consecutive and in that order, into one ``(N, K)``
     column ``name``: how formats without multi-component columns store ``(N, K)`` fields.
 
     A run is joined when it has at least ``min_components`` columns of one dtype and ``name`` is

@@ -26,6 +26,7 @@ read-only memory map, so memory holds the output arrays and nothing more.
 from __future__ import annotations
 
 import ast
+import io
 import math
 import warnings
 from dataclasses import dataclass
@@ -36,6 +37,7 @@ import numpy as np
 
 from pointfield.clouds.cloud import PointCloud, Records
 from pointfield.clouds.formats.binary import check_size, map_file, read_records
+from pointfield.clouds.formats.chunked import BodyFirstWriter, RecordSource
 from pointfield.clouds.formats.columns import columns_to_cloud_parts
 from pointfield.clouds.formats.registry import Format, register
 from pointfield.errors import FormatError
@@ -271,6 +273,63 @@ def write_npy(path: Path, cloud: PointCloud | Records, encoding: str | None = No
         np.lib.format.write_array(file, records, allow_pickle=False)
 
 
+def open_npy_chunks(path: Path) -> RecordSource | None:
+    """The rows of an ``(N, 3+K)`` / ``(H, W, 3+K)`` array, or the records of a structured one, as a
+    :class:`RecordSource`; None (read whole) for a Fortran-ordered array or another shape."""
+    with open(path, "rb") as file:
+        header = read_array_header(file, path)
+    if header.fortran_order and len(header.shape) > 1:
+        return None
+    structured = header.dtype.names is not None
+    if structured and len(header.shape) in (1, 2):
+        count, dtype = header.count, header.dtype
+    elif not structured and len(header.shape) in (2, 3) and header.shape[-1] >= 3:
+        count = header.count // header.shape[-1]
+        dtype = np.dtype((header.dtype, (header.shape[-1],)))
+    else:
+        return None
+
+    def convert(records: np.ndarray) -> PointCloud | Records:
+        cloud = cloud_from_array(records, path, "the array")
+        cloud.metadata["encoding"] = "binary"
+        return cloud
+
+    return RecordSource(path, dtype, header.size, count, convert, "npy", "record")
+
+
+class NpyChunkWriter(BodyFirstWriter):
+    """A structured ``.npy``: the record layout :func:`write_npy` chooses, taken from the
+    first chunk, then the records; the header (with the count) at the end."""
+
+    def _begin(self, cloud: PointCloud) -> None:
+        super()._begin(cloud)
+        probe = self.tmp.with_name(self.tmp.name + ".layout.npy")
+        try:
+            write_npy(probe, cloud.select(slice(0, 0)))
+            self.dtype = np.load(probe, allow_pickle=False).dtype
+        finally:
+            probe.unlink(missing_ok=True)
+
+    def _write(self, cloud: PointCloud) -> None:
+        records = np.empty(len(cloud), self.dtype)
+        for i, axis in enumerate("xyz"):
+            records[axis] = cloud.points[:, i]
+        for name in self.dtype.names[3:]:
+            records[name] = cloud.fields[name]
+        records.tofile(self.body)
+
+    def _header(self) -> bytes:
+        header = np.lib.format.header_data_from_array_1_0(np.empty(0, self.dtype))
+        header["shape"] = (self.count,)
+        buffer = io.BytesIO()
+        try:  # the version np.save picks: 1.0 unless the header is too long for it
+            np.lib.format.write_array_header_1_0(buffer, header)
+        except ValueError:
+            buffer = io.BytesIO()
+            np.lib.format.write_array_header_2_0(buffer, header)
+        return buffer.getvalue()
+
+
 register(
     Format(
         name="npy",
@@ -281,5 +340,7 @@ register(
         encodings=("binary",),
         signature=looks_like_npy,
         holds_records=True,
+        open_chunks=open_npy_chunks,
+        chunk_writer=lambda encoding: NpyChunkWriter,
     )
 )

@@ -251,7 +251,7 @@ def _parse_rows(
                     path,
                     f"line {line_numbers[bad[0] // 3]}: colour {colors.flat[bad[0]]!r} is not an "
                     f"integer from 0 to 255",
-                )
+                ) from None  # the fast reader's refusal is not the cause; the named line is
             columns += list(colors.astype(np.uint8).T)
     if len(columns[0]) != count:
         raise FormatError(

@@ -33,6 +33,15 @@ class Format:
     ``aliases`` maps the generic names the command line uses (``ascii``, ``binary``,
     ``compressed``) onto them. ``holds_faces`` says whether the format stores a Mesh's faces,
     ``holds_records`` whether it stores :class:`Records` (fields without x, y, z).
+
+    A format that streams (:mod:`pointfield.clouds.formats.chunked`) also gives
+    ``open_chunks(path, **options)``, a :class:`~pointfield.clouds.formats.chunked.ChunkSource` for
+    the file or None when this file must be read whole, the names of the ``chunk_options`` it
+    takes (``columns`` for ``.bin``; ``bounds``, ``level``, ``resolution`` for COPC), and
+    ``chunk_writer(encoding)``, the :class:`~pointfield.clouds.formats.chunked.ChunkWriter` class
+    for an encoding or None when that encoding is written whole. ``check_output(path)`` raises a
+    FormatError for an output name the format refuses (LAS: ``.copc.laz``), before anything is
+    written.
     """
 
     name: str
@@ -46,6 +55,10 @@ class Format:
     suffix_encodings: Mapping[str, str] = field(default_factory=dict)
     holds_faces: bool = False
     holds_records: bool = False
+    open_chunks: Callable[..., Any] | None = None
+    chunk_options: tuple[str, ...] = ()
+    chunk_writer: Callable[[str | None], type | None] | None = None
+    check_output: Callable[[Path], None] | None = None
 
     def resolve_encoding(self, encoding: str | None, path: Path) -> str | None:
         if encoding is None:
@@ -132,6 +145,8 @@ def write(
     if fmt.write is None:
         raise FormatError(path, f"pointfield reads {fmt.name} but cannot write it")
     resolved = fmt.resolve_encoding(encoding, path)
+    if fmt.check_output is not None:
+        fmt.check_output(path)
     if isinstance(cloud, Records) and not fmt.holds_records:
         raise FormatError(
             path,

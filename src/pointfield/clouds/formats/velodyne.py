@@ -52,6 +52,7 @@ import numpy as np
 
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats.binary import map_file, read_records
+from pointfield.clouds.formats.chunked import ChunkWriter, RecordSource
 from pointfield.clouds.formats.registry import Format, register
 from pointfield.errors import FormatError
 
@@ -251,6 +252,43 @@ def write_velodyne(path: Path, cloud: PointCloud, encoding: str | None = None) -
     records.tofile(path)
 
 
+def open_velodyne_chunks(path: Path, columns: int | None = None) -> RecordSource:
+    """The scan's float32 records as a :class:`RecordSource`; ``columns`` guessed as :func:`read_velodyne` does."""
+    columns = guess_columns(path) if columns is None else columns
+    size = path.stat().st_size
+    record = RECORD_DTYPE.itemsize * columns if isinstance(columns, int) and columns >= 3 else 0
+    if not record or size == 0 or size % record:
+        read_velodyne(path, columns)  # raises the reader's own error for this file
+    dtype = np.dtype((RECORD_DTYPE, columns))
+
+    def convert(records: np.ndarray) -> PointCloud:
+        return cloud_from_records(records.reshape(-1, columns))
+
+    return RecordSource(path, dtype, 0, size // record, convert, "velodyne")
+
+
+class VelodyneChunkWriter(ChunkWriter):
+    """Raw float32 scans: no header, the records of each chunk appended by :func:`write_velodyne`."""
+
+    def _begin(self, cloud: PointCloud) -> None:
+        self.file = open(self.tmp, "wb")  # noqa: SIM115 -- open across write calls, closed in _finish
+
+    def _write(self, cloud: PointCloud) -> None:
+        if len(cloud):
+            write_velodyne(self.file, cloud)  # its records go to the open file's end
+
+    def _finish(self) -> None:
+        self.file.close()
+        if self.count == 0:
+            raise FormatError(
+                self.path, "a float32 scan cannot hold zero points (an empty .bin reads as an error)"
+            )
+
+    def _cleanup(self) -> None:
+        if hasattr(self, "file"):
+            self.file.close()
+
+
 def _is_vector(values: np.ndarray | None) -> bool:
     return values is not None and values.ndim == 1 and values.dtype.kind in "biuf"
 
@@ -274,5 +312,8 @@ register(
         encodings=("float32",),
         aliases={"binary": "float32"},
         signature=None,
+        open_chunks=open_velodyne_chunks,
+        chunk_options=("columns",),
+        chunk_writer=lambda encoding: VelodyneChunkWriter,
     )
 )

@@ -19,7 +19,7 @@ import numpy as np
 from pointfield.errors import FormatError
 
 ROTATION_TOLERANCE = 1e-3
-"""Largest |R^T R - I| entry accepted as a rotation: datasets print poses as float32 (1e-7) or
+"""Largest ``|R^T R - I|`` entry accepted as a rotation: datasets print poses as float32 (1e-7) or
 with a few digits; a scaled or sheared matrix is off by far more."""
 
 MAX_IMAGE_SIDE = 1 << 16
@@ -115,7 +115,7 @@ def image_size(path: Path, where: str) -> tuple[int, int] | None:
     try:
         with Image.open(path) as image:
             return image.size
-    except Exception as error:  # Pillow raises many types (OSError, SyntaxError, ValueError, ...)
+    except Exception as error:  # noqa: BLE001 - re-raised as FormatError; Pillow raises many types (OSError, SyntaxError, ValueError, ...)
         raise FormatError(path, f"{where}: not a readable image ({type(error).__name__}: {error})") from None
 
 

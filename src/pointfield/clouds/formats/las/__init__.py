@@ -37,7 +37,10 @@ Writing
     ``las:pointSourceId``, PDAL's ``PointSourceId`` or ``GpsTime`` -> ``point_source_id``,
     ``gps_time``), other names have ``:`` and non-ASCII characters replaced by ``_`` (numpy's
     buffers, through which laspy writes, refuse ``:``). One warning lists every such change.
-    :class:`Records` (no x, y, z) are refused by the registry, as for NPZ.
+    :class:`Records` (no x, y, z) are refused by the registry, as for NPZ. COPC is read, not
+    written: a ``.copc.laz`` output is refused with a FormatError that says so (the octree
+    ordering and hierarchy EVLR a COPC reader expects are not written); write ``.laz`` and convert
+    it with PDAL's ``writers.copc`` or untwine.
 
 Metadata (read, and used by the writer to write a LAS cloud back faithfully)
     ``scales``, ``offsets`` (3 floats each), ``las_version`` ("1.4"), ``las_point_format``
@@ -60,15 +63,33 @@ checked against the file's size before laspy, lazrs or LASzip allocate anything,
 lazrs / LASzip failure (including lazrs panics) becomes a :class:`FormatError` naming the file.
 
 Modules: ``layout`` (those checks), ``reader``, ``dimensions`` (which dimension each field is
-written to), ``writer``, ``library`` (laspy's, lazrs's and LASzip's errors as FormatErrors).
+written to), ``writer``, ``library`` (laspy's, lazrs's and LASzip's errors as FormatErrors), and
+``chunks`` (reading, COPC queries and writing a window of points at a time, for
+:mod:`pointfield.streaming`).
 """
 
+from pointfield.clouds.formats.las.chunks import (
+    CopcSource,
+    LasChunkWriter,
+    LasSource,
+    las_chunk_writer,
+    open_las_chunks,
+)
 from pointfield.clouds.formats.las.layout import is_las
 from pointfield.clouds.formats.las.reader import read_las
-from pointfield.clouds.formats.las.writer import write_las
+from pointfield.clouds.formats.las.writer import coordinates_fit, refuse_copc_output, write_las
 from pointfield.clouds.formats.registry import Format, register
 
-__all__ = ["is_las", "read_las", "write_las"]
+__all__ = [
+    "CopcSource",
+    "LasChunkWriter",
+    "LasSource",
+    "coordinates_fit",
+    "is_las",
+    "open_las_chunks",
+    "read_las",
+    "write_las",
+]
 
 register(
     Format(
@@ -81,5 +102,9 @@ register(
         aliases={"binary": "las", "compressed": "laz"},
         signature=is_las,
         suffix_encodings={".laz": "laz"},
+        open_chunks=open_las_chunks,
+        chunk_options=("bounds", "level", "resolution"),
+        chunk_writer=las_chunk_writer,
+        check_output=refuse_copc_output,
     )
 )

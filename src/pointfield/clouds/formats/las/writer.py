@@ -27,6 +27,7 @@ from pointfield.clouds.formats.las.dimensions import (
     version_for,
 )
 from pointfield.clouds.formats.las.library import library_errors
+from pointfield.errors import FormatError
 from pointfield.version import __version__
 
 _DEFAULT_SCALE = 0.001
@@ -60,6 +61,21 @@ def write_las(path: Path, cloud: PointCloud, encoding: str | None = None) -> Non
             writer.write_points(records)
             if evlrs:
                 writer.write_evlrs(evlrs)
+
+
+def refuse_copc_output(path: Path) -> None:
+    """Refuse a ``.copc.laz`` output: pointfield writes LAZ without the octree a COPC reader needs.
+
+    A COPC file is a LAZ file whose points are ordered by an octree, with a ``copc info`` VLR first
+    and the octree's hierarchy in an EVLR; written as plain LAZ under that name, a COPC reader
+    (laspy's ``CopcReader``, PDAL, QGIS) would fail on it or, worse, trust a stale index.
+    """
+    if path.name.lower().endswith(".copc.laz"):
+        raise FormatError(
+            path,
+            "pointfield cannot write COPC (the octree ordering and hierarchy a COPC reader needs); "
+            "write .laz and convert it with PDAL's writers.copc or untwine",
+        )
 
 
 def las_dimensions(
@@ -137,6 +153,15 @@ def _three_floats(value: Any) -> np.ndarray | None:
     except (TypeError, ValueError):
         return None
     return array if array.shape == (3,) and np.all(np.isfinite(array)) else None
+
+
+def coordinates_fit(low: np.ndarray, high: np.ndarray, metadata: Mapping[str, Any]) -> bool:
+    """Whether points from ``low`` to ``high`` fit the int32 coordinates of ``metadata``'s LAS scales and
+    offsets, so that :func:`write_las` keeps them: then any subset of those points is written with them."""
+    scales, offsets = _three_floats(metadata.get("scales")), _three_floats(metadata.get("offsets"))
+    if scales is None or offsets is None or not np.all(scales > 0):
+        return False
+    return _in_int32(low, high, scales, offsets)
 
 
 def _in_int32(low: np.ndarray, high: np.ndarray, scales: np.ndarray, offsets: np.ndarray) -> bool:

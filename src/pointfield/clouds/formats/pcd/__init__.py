@@ -66,9 +66,11 @@ float colours can be NaN patterns). When reading an ascii ``rgb`` of TYPE F, a c
 numbers in [0, 2**32) is taken as that integer word (PCL's own ascii output), anything else as a
 float whose bits are the word.
 
-Modules: ``header`` (the header's keywords, types and checks), ``reader``, ``writer``.
+Modules: ``header`` (the header's keywords, types and checks), ``reader``, ``writer``, and
+``chunks`` (reading and writing a window of points at a time, for :mod:`pointfield.streaming`).
 """
 
+from pointfield.clouds.formats.pcd.chunks import PcdChunkWriter, open_pcd_chunks, pcd_chunk_writer
 from pointfield.clouds.formats.pcd.header import (
     ENCODINGS,
     MAX_HEADER_BYTES,
@@ -82,7 +84,9 @@ from pointfield.clouds.formats.registry import Format, register
 __all__ = [
     "ENCODINGS",
     "MAX_HEADER_BYTES",
+    "PcdChunkWriter",
     "looks_like_pcd",
+    "open_pcd_chunks",
     "parse_header",
     "read_pcd",
     "write_pcd",
@@ -99,5 +103,7 @@ register(
         aliases={"compressed": "binary_compressed"},
         signature=looks_like_pcd,
         holds_records=True,
+        open_chunks=open_pcd_chunks,
+        chunk_writer=pcd_chunk_writer,
     )
 )

@@ -42,7 +42,26 @@ def write_pcd(path: Path, cloud: PointCloud | Records, encoding: str | None = No
     fields = [_field_for(name, values) for name, values in columns.items()]
     shape = getattr(cloud, "shape", None) or (1, n)
     viewpoint = _viewpoint_to_write(cloud.metadata.get("viewpoint"), path)
-    comments = cloud.metadata.get("comments", ())
+    with open(path, "wb") as file:
+        file.write(_header_text(fields, shape, n, viewpoint, encoding, cloud.metadata))
+        if encoding == "binary":
+            _write_binary(file, columns, fields, n)
+        elif encoding == "binary_compressed":
+            _write_compressed(file, columns, fields, n, path)
+        else:
+            _write_ascii(file, columns)
+
+
+def _header_text(
+    fields: list[PcdField],
+    shape: tuple[int, int],
+    points: int,
+    viewpoint: tuple[float, ...],
+    encoding: str,
+    metadata: Mapping[str, object],
+) -> bytes:
+    """The header of ``points`` points of ``(HEIGHT, WIDTH)`` = ``shape``, with ``metadata``'s comments."""
+    comments = metadata.get("comments", ())
     comments = [comments] if isinstance(comments, str) else comments
     lines = [BANNER]
     lines += [f"# {line}" for comment in comments for line in str(comment).splitlines()]
@@ -55,17 +74,10 @@ def write_pcd(path: Path, cloud: PointCloud | Records, encoding: str | None = No
         f"WIDTH {shape[1]}",
         f"HEIGHT {shape[0]}",
         "VIEWPOINT " + " ".join(_number_text(v) for v in viewpoint),
-        f"POINTS {n}",
+        f"POINTS {points}",
         f"DATA {encoding}",
     ]
-    with open(path, "wb") as file:
-        file.write(("\n".join(lines) + "\n").encode("utf-8"))
-        if encoding == "binary":
-            _write_binary(file, columns, fields, n)
-        elif encoding == "binary_compressed":
-            _write_compressed(file, columns, fields, n, path)
-        else:
-            _write_ascii(file, columns)
+    return ("\n".join(lines) + "\n").encode("utf-8")
 
 
 def _columns_to_write(cloud: PointCloud | Records, ascii_text: bool) -> dict[str, np.ndarray]:

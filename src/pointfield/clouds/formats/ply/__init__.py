@@ -41,16 +41,18 @@ Writing stores every field with its own dtype (ascii files declare types too, so
 in all three encodings). Types PLY has no name for are converted when no value changes (bool ->
 uchar, float16 -> float) and refused with a FormatError otherwise. PLY has no 64-bit integers:
 int64 / uint64 fields are written as uint or int (the source's signedness first) when every
-value fits in 32 bits, else as double when every value is exact in one (|v| <= 2**53), each with
+value fits in 32 bits, else as double when every value is exact in one (``|v| <= 2**53``), each with
 a warning naming the field and the type it reads back as; larger values are refused. Faces'
 vertex indices of any integer type are written as int without a warning. ``(N, K)`` fields other
 than colours and normals are written as lists of K items. Ascii floats are written in the
 shortest form that reads back to the same float32 / float64 value.
 
 The package reads like the format: ``header`` (the header's grammar and types), ``reader`` (the
-data section and how it maps onto pointfield objects), ``writer``.
+data section and how it maps onto pointfield objects), ``writer``, and ``chunks`` (the same,
+a window of vertices at a time, for :mod:`pointfield.streaming`).
 """
 
+from pointfield.clouds.formats.ply.chunks import PlyChunkWriter, open_ply_chunks, ply_chunk_writer
 from pointfield.clouds.formats.ply.header import (
     ENCODINGS,
     SPLAT_PROPERTIES,
@@ -61,7 +63,16 @@ from pointfield.clouds.formats.ply.reader import read_ply
 from pointfield.clouds.formats.ply.writer import write_ply
 from pointfield.clouds.formats.registry import Format, register
 
-__all__ = ["ENCODINGS", "SPLAT_PROPERTIES", "is_ply", "parse_header", "read_ply", "write_ply"]
+__all__ = [
+    "ENCODINGS",
+    "SPLAT_PROPERTIES",
+    "PlyChunkWriter",
+    "is_ply",
+    "open_ply_chunks",
+    "parse_header",
+    "read_ply",
+    "write_ply",
+]
 
 register(
     Format(
@@ -75,5 +86,7 @@ register(
         signature=is_ply,
         holds_records=True,
         holds_faces=True,
+        open_chunks=open_ply_chunks,
+        chunk_writer=ply_chunk_writer,
     )
 )
