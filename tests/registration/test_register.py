@@ -74,19 +74,28 @@ def test_numpy_reference_and_small_gicp_agree(estimation):
 
 
 def test_auto_chooses_from_what_the_clouds_carry_and_says_so():
-    source, target, truth = pair(angle=5.0)
-    bare_source, bare_target = (pointfield.PointCloud(c.points) for c in (source, target))
-    with_normals = pointfield.PointCloud(bare_target.points, {"normals": Scan.from_cloud(bare_target).with_normals().normals})
+    bumpy, bumpy_target, truth = pair(angle=5.0)
+    flat, flat_target, flat_truth = pair(angle=3.0, flat=True)
+    bare, bare_target = (pointfield.PointCloud(c.points) for c in (bumpy, bumpy_target))
     chosen = {
-        "coloured ICP": register(source, target, init=np.eye(4), voxel=0.02),
-        "point-to-plane ICP": register(bare_source, with_normals, init=np.eye(4), voxel=0.02),
-        "generalized ICP": register(bare_source, bare_target, init=np.eye(4), voxel=0.02),
+        ("generalized ICP", "no colours"): (register(bare, bare_target, init=np.eye(4), voxel=0.02), truth),
+        ("generalized ICP", "colours left aside"): (register(bumpy, bumpy_target, init=np.eye(4), voxel=0.02), truth),
+        ("coloured ICP", "leaves a direction free"): (register(flat, flat_target, init=np.eye(4), voxel=0.02),
+                                                       flat_truth),
     }
-    for name, result in chosen.items():
-        assert name in result.method and any(name in note for note in result.notes)
-        assert errors(result.transformation, truth)[0] < 0.5
-    without_init = register(bare_source, bare_target, voxel=0.02)
+    for (name, reason), (result, expected) in chosen.items():
+        assert name in result.method and any(reason in note for note in result.notes), result.notes
+        assert errors(result.transformation, expected)[0] < 0.5
+    without_init = register(bare, bare_target, voxel=0.02)
     assert without_init.method.startswith("global") and any("no init" in note for note in without_init.notes)
+
+
+def test_coloured_icp_fixes_a_slide_that_geometry_cannot():
+    source, target, truth = pair(angle=3.0, translation=(0.04, -0.03, 0.0), flat=True)
+    coloured = register(source, target, method="colored", init=np.eye(4), voxel=0.02)
+    geometric = register(source, target, method="gicp", init=np.eye(4), voxel=0.02)
+    assert errors(coloured.transformation, truth)[1] < 0.005
+    assert errors(geometric.transformation, truth)[1] > 0.02  # the plane slides along itself
 
 
 def test_voxel_follows_the_data_and_is_said():

@@ -36,25 +36,34 @@ def neighbourhoods(points: np.ndarray, radius: float, max_nn: int, tree: cKDTree
 
 
 def pair_features(p_s: np.ndarray, n_s: np.ndarray, p_t: np.ndarray, n_t: np.ndarray) -> tuple[np.ndarray, ...]:
-    """``(theta, alpha, phi, ok)`` of point pairs, each ``(...,)``; ``ok`` is False for coincident
-    points or a line parallel to the normal (open3d counts those in no bin)."""
+    """``(theta, alpha, phi, ok)`` of P point pairs given as ``(P, 3)`` arrays, each ``(P,)``; ``ok`` is False
+    for coincident points or a line parallel to the normal (open3d counts those in no bin)."""
     d = p_t - p_s
-    length = np.linalg.norm(d, axis=-1)
+    length = np.sqrt(np.einsum("pi,pi->p", d, d))
     safe = np.maximum(length, 1e-300)
-    angle_s = (n_s * d).sum(-1) / safe
-    angle_t = (n_t * d).sum(-1) / safe
-    swap = np.arccos(np.clip(np.abs(angle_s), 0, 1)) > np.arccos(np.clip(np.abs(angle_t), 0, 1))
-    u = np.where(swap[..., None], n_t, n_s)
-    other = np.where(swap[..., None], n_s, n_t)
-    d = np.where(swap[..., None], -d, d)
+    angle_s = np.einsum("pi,pi->p", n_s, d) / safe
+    angle_t = np.einsum("pi,pi->p", n_t, d) / safe
+    swap = np.abs(angle_s) < np.abs(angle_t)  # acos(|a_s|) > acos(|a_t|): start from the better-aligned normal
+    u = np.where(swap[:, None], n_t, n_s)
+    other = np.where(swap[:, None], n_s, n_t)
+    d[swap] *= -1
     phi = np.where(swap, -angle_t, angle_s)
-    v = np.cross(d, u)
-    v_length = np.linalg.norm(v, axis=-1)
-    v = v / np.maximum(v_length, 1e-300)[..., None]
-    w = np.cross(u, v)
-    alpha = (v * other).sum(-1)
-    theta = np.arctan2((w * other).sum(-1), (u * other).sum(-1))
+    v = _cross(d, u)
+    v_length = np.sqrt(np.einsum("pi,pi->p", v, v))
+    v /= np.maximum(v_length, 1e-300)[:, None]
+    w = _cross(u, v)
+    alpha = np.einsum("pi,pi->p", v, other)
+    theta = np.arctan2(np.einsum("pi,pi->p", w, other), np.einsum("pi,pi->p", u, other))
     return theta, alpha, phi, (length > 0) & (v_length > 0)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of ``(P, 3)`` arrays (np.cross is several times slower on long arrays)."""
+    out = np.empty_like(a)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
 
 
 def compute_fpfh(points: np.ndarray, normals: np.ndarray, radius: float, max_nn: int = 100) -> np.ndarray:
@@ -67,18 +76,20 @@ def compute_fpfh(points: np.ndarray, normals: np.ndarray, radius: float, max_nn:
     n = len(points)
     index, distance2, valid = neighbourhoods(points, radius, max_nn)
     valid[:, 0] = False  # the point itself
-    theta, alpha, phi, ok = pair_features(points[:, None], normals[:, None], points[index], normals[index])
-    counted = valid & ok
+    rows, columns = np.nonzero(valid)
+    others = index[rows, columns]
+    theta, alpha, phi, ok = pair_features(points[rows], normals[rows], points[others], normals[others])
+    neighbours = np.bincount(rows, minlength=n)
+    increment = 100.0 / np.maximum(neighbours, 1)
     spfh = np.zeros((n, 3 * BINS))
-    neighbours = valid.sum(axis=1)
-    increment = np.where(neighbours > 0, 100.0 / np.maximum(neighbours, 1), 0.0)
-    rows = np.broadcast_to(np.arange(n)[:, None], index.shape)[counted]
+    counted = rows[ok]
     for offset, values, low, span in ((0, theta, -np.pi, 2 * np.pi), (BINS, alpha, -1.0, 2.0), (2 * BINS, phi, -1.0, 2.0)):
-        bins = np.clip(np.floor(BINS * (values[counted] - low) / span).astype(np.int64), 0, BINS - 1)
-        np.add.at(spfh, (rows, offset + bins), increment[rows])
-    weighted = valid & (distance2 > 0)
-    rows = np.broadcast_to(np.arange(n)[:, None], index.shape)[weighted]
-    weights = csr_matrix((1.0 / distance2[weighted], (rows, index[weighted])), shape=(n, n))
+        bins = np.clip(np.floor(BINS * (values[ok] - low) / span).astype(np.int64), 0, BINS - 1)
+        spfh += np.bincount(counted * 3 * BINS + offset + bins, weights=increment[counted],
+                            minlength=n * 3 * BINS).reshape(n, 3 * BINS)
+    distance2 = distance2[rows, columns]
+    weighted = distance2 > 0
+    weights = csr_matrix((1.0 / distance2[weighted], (rows[weighted], others[weighted])), shape=(n, n))
     fpfh = weights @ spfh
     sums = fpfh.reshape(n, 3, BINS).sum(axis=2, keepdims=True)
     scale = np.where(sums > 0, 100.0 / np.where(sums > 0, sums, 1.0), 0.0)

@@ -11,8 +11,9 @@ What it decides, when not told (each choice is one sentence of ``result.notes``)
   ``max_distance`` (default: the voxel; aligned scans sampled at that spacing then find a
   partner for every overlapping point, so fitness reads as the overlap).
 - **method** -- ``auto`` runs global registration when no ``init`` is given (nothing says the
-  scans start close), then the fine step: coloured ICP where both clouds carry colours,
-  point-to-plane where the target carries normals, else generalized ICP (which needs none).
+  scans start close), then the fine step: coloured ICP where both clouds carry colours and
+  the geometry alone leaves a direction free (a wall, a floor, a corridor), else generalized
+  ICP, which measured the most accurate of the four on real scans and needs no normals.
 - **coarse to fine** -- from a given pose the fine step runs at 4, 2 and 1 voxel then on the full
   clouds; after global registration, at 1 voxel then on the full clouds.
 
@@ -44,6 +45,9 @@ FEATURE_RADIUS = 5.0
 """FPFH radius in voxels (open3d's tutorial)."""
 RANSAC_DISTANCE = 1.5
 """RANSAC inlier distance in voxels (open3d's tutorial)."""
+FLAT = 0.02
+"""Normal spread (:func:`unconstrained_spread`) below which geometry leaves a direction free: normals
+within about 8 degrees of one plane's normal, or of one plane (a corridor)."""
 
 
 def check_cloud(cloud: PointCloud | np.ndarray, name: str = "source") -> Scan:
@@ -105,9 +109,26 @@ def default_voxel(scan: Scan, sample: int = 5000) -> tuple[float, str]:
                    "set --voxel to override")
 
 
+def unconstrained_spread(scan: Scan, sample: int = 20_000) -> float:
+    """Smallest eigenvalue of ``mean(n n^T)`` over the scan's normals (a sample of them): near 0 when
+    some direction is along every surface -- a plane, a corridor -- so geometry cannot fix a
+    translation along it; up to 1/3 for surfaces that face every way."""
+    if len(scan) > sample:
+        keep = np.random.default_rng(0).choice(len(scan), sample, replace=False)
+        scan = Scan(scan.points[keep], None if scan.normals is None else scan.normals[keep])
+    normals = scan.with_normals().normals
+    return float(np.linalg.eigvalsh(normals.T @ normals / len(normals))[0])
+
+
 def choose_estimation(method: str, source: Scan, target: Scan, kernel: str | None, scale: float
                       ) -> tuple[Estimation, str]:
-    """``(estimation, why)`` for a fine ``method`` (``icp``, ``plane``, ``gicp``, ``colored``) or ``auto``/``global``."""
+    """``(estimation, why)`` for a fine ``method`` (``icp``, ``plane``, ``gicp``, ``colored``) or ``auto``/``global``.
+
+    ``auto``: coloured ICP where both clouds carry colours and the target's geometry leaves a
+    direction free (:func:`unconstrained_spread` below :data:`FLAT`); else generalized ICP, the
+    most accurate of the four on the fragments and the bunny (docs/registration.md), which
+    needs neither normals nor colours.
+    """
     robust = kernel_named(kernel, scale)
     fixed = {"icp": PointToPoint, "plane": PointToPlane, "gicp": GeneralizedICP, "colored": ColoredICP}
     if method in fixed:
@@ -115,11 +136,14 @@ def choose_estimation(method: str, source: Scan, target: Scan, kernel: str | Non
             missing = " and ".join(n for n, s in (("source", source), ("target", target)) if s.intensity is None)
             raise PointfieldError(f"--method colored needs colours in both clouds; {missing} has none")
         return fixed[method](robust), f"fine step: {fixed[method].name}, as asked"
-    if source.intensity is not None and target.intensity is not None:
-        return ColoredICP(robust), "fine step: coloured ICP, as both clouds carry colours"
-    if target.normals is not None:
-        return PointToPlane(robust), "fine step: point-to-plane ICP, as the target carries normals"
-    return GeneralizedICP(robust), "fine step: generalized ICP, as the target has neither colours nor normals"
+    if source.intensity is None or target.intensity is None:
+        return GeneralizedICP(robust), "fine step: generalized ICP (no colours in both clouds)"
+    spread = unconstrained_spread(target)
+    if spread < FLAT:
+        return ColoredICP(robust), (f"fine step: coloured ICP, as both clouds carry colours and the target's "
+                                    f"geometry leaves a direction free (normal spread {spread:.3f} < {FLAT})")
+    return GeneralizedICP(robust), (f"fine step: generalized ICP; colours left aside, as the geometry fixes "
+                                    f"every direction (normal spread {spread:.3f} >= {FLAT})")
 
 
 def global_registration(source: Scan, target: Scan, voxel: float, seed: int = 0,
