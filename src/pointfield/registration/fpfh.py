@@ -19,6 +19,8 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
+from pointfield.registration.scan import query_workers
+
 BINS = 11
 
 
@@ -28,17 +30,17 @@ def neighbourhoods(points: np.ndarray, radius: float, max_nn: int, tree: cKDTree
     ``radius`` (open3d's hybrid search), each point first in its own row."""
     tree = tree or cKDTree(points)
     k = min(max_nn, len(points))
-    distance, index = tree.query(points, k=k, distance_upper_bound=radius, workers=-1)
+    distance, index = tree.query(points, k=k, distance_upper_bound=radius, workers=query_workers(len(points)))
     distance, index = distance.reshape(len(points), k), index.reshape(len(points), k)
     valid = np.isfinite(distance)
     index = np.where(valid, index, 0)
     return index, np.where(valid, distance**2, 0.0), valid
 
 
-def pair_features(p_s: np.ndarray, n_s: np.ndarray, p_t: np.ndarray, n_t: np.ndarray) -> tuple[np.ndarray, ...]:
-    """``(theta, alpha, phi, ok)`` of P point pairs given as ``(P, 3)`` arrays, each ``(P,)``; ``ok`` is False
-    for coincident points or a line parallel to the normal (open3d counts those in no bin)."""
-    d = p_t - p_s
+def pair_features(d: np.ndarray, n_s: np.ndarray, n_t: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``(theta, alpha, phi, ok)`` of P point pairs, each ``(P,)``, from ``(P, 3)`` offsets ``d = p_t - p_s``
+    and normals; ``ok`` is False for coincident points or a line parallel to the normal (open3d
+    counts those in no bin). ``d`` is overwritten."""
     length = np.sqrt(np.einsum("pi,pi->p", d, d))
     safe = np.maximum(length, 1e-300)
     angle_s = np.einsum("pi,pi->p", n_s, d) / safe
@@ -78,7 +80,10 @@ def compute_fpfh(points: np.ndarray, normals: np.ndarray, radius: float, max_nn:
     valid[:, 0] = False  # the point itself
     rows, columns = np.nonzero(valid)
     others = index[rows, columns]
-    theta, alpha, phi, ok = pair_features(points[rows], normals[rows], points[others], normals[others])
+    # Offsets in float64 (UTM-sized coordinates), the angles in float32: bins of 1/11 need no more.
+    offsets = (points[others] - points[rows]).astype(np.float32)
+    unit = normals.astype(np.float32)
+    theta, alpha, phi, ok = pair_features(offsets, unit[rows], unit[others])
     neighbours = np.bincount(rows, minlength=n)
     increment = 100.0 / np.maximum(neighbours, 1)
     spfh = np.zeros((n, 3 * BINS))

@@ -95,14 +95,13 @@ def registration_small_gicp(source: Scan, target: Scan, max_distance: float, ini
     if kind is None:
         raise ValueError(f"small_gicp has no {estimation.name}; use registration_icp")
     threads = threads or solver_threads(len(source) + len(target))
-    clouds = []
-    for scan in (target, source):
-        cloud = small_gicp.PointCloud(scan.points)
-        tree = small_gicp.KdTree(cloud, num_threads=threads)
-        if kind != "ICP":
-            small_gicp.estimate_normals_covariances(cloud, tree, num_neighbors=20, num_threads=threads)
-        clouds.append((cloud, tree))
-    (target_cloud, target_tree), (source_cloud, _) = clouds
+    target_cloud, source_cloud = small_gicp.PointCloud(target.points), small_gicp.PointCloud(source.points)
+    target_tree = small_gicp.KdTree(target_cloud, num_threads=threads)
+    if kind != "ICP":  # point-to-plane needs the target's normals, generalized ICP both clouds' covariances
+        small_gicp.estimate_normals_covariances(target_cloud, target_tree, num_neighbors=20, num_threads=threads)
+    if kind == "GICP":
+        small_gicp.estimate_covariances(source_cloud, small_gicp.KdTree(source_cloud, num_threads=threads),
+                                        num_neighbors=20, num_threads=threads)
     init = np.eye(4) if init is None else np.asarray(init, np.float64)
     solved = small_gicp.align(target_cloud, source_cloud, target_tree, init_T_target_source=init,
                               registration_type=kind, max_correspondence_distance=max_distance,

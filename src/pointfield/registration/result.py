@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from pointfield.registration.scan import query_workers
+
 LOW_FITNESS = 0.2
 """Below this fitness a result is flagged: two scans of the same place rarely share less than a fifth."""
 
@@ -77,7 +79,7 @@ def transform_points(points: np.ndarray, transformation: np.ndarray) -> np.ndarr
 
 def correspondences(moved: np.ndarray, tree: cKDTree, max_distance: float) -> tuple[np.ndarray, np.ndarray]:
     """``(pairs (K, 2) int64, distances (K,))``: each moved source point's nearest target within ``max_distance``."""
-    distances, index = tree.query(moved, distance_upper_bound=max_distance, workers=-1)
+    distances, index = tree.query(moved, distance_upper_bound=max_distance, workers=query_workers(len(moved)))
     found = np.isfinite(distances)
     pairs = np.stack([np.flatnonzero(found), index[found]], axis=1).astype(np.int64)
     return pairs, distances[found]
