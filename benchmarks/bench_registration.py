@@ -110,9 +110,9 @@ def fragments(record: Record, repeats: int) -> None:
 
     def with_small_gicp():
         start = open3d_global(o3d_source, o3d_target, TUTORIAL_VOXEL)
-        keep("open3d FPFH + RANSAC, then small_gicp GICP", small_gicp.align(
-            source.points.astype(np.float64), target.points.astype(np.float64), start, registration_type="GICP",
-            downsampling_resolution=1e-6, max_correspondence_distance=threshold, num_threads=THREADS).T_target_source)
+        keep("open3d FPFH + RANSAC, then small_gicp GICP", registration_small_gicp(
+            Scan(source.points.astype(np.float64)), Scan(target.points.astype(np.float64)), threshold, start,
+            GeneralizedICP(), threads=THREADS).transformation)
 
     contenders = {
         "open3d tutorial (FPFH + RANSAC + point-to-plane ICP)": tutorial,
