@@ -6,6 +6,7 @@ The functions most people need first::
     cloud = pointfield.read("scan.pcd")          # any supported format
     for chunk in pointfield.read_chunks("city.laz", points=1_000_000): ...  # bigger than memory
     pointfield.write("scan.ply", cloud)          # fields preserved, written atomically
+    result = pointfield.register(scan, other)    # rigid motion scan -> other, with fitness and RMSE
     run = pointfield.load_run("runs/lego-ngp")   # any trained run: .render(cameras), .evaluate(), ...
     pointfield.classify.train(out="runs/shapes") # pointfield.classify / .segment: train, evaluate, predict
 """
@@ -17,8 +18,10 @@ from pointfield.errors import FormatError, PointfieldError
 from pointfield.streaming import read_chunks
 from pointfield.version import __version__
 
-# The learning half needs torch; it is imported on first use so that reading a cloud stays quick.
-_LEARNING = {"load_run": "pointfield.runs", "classify": "pointfield.clouds.run", "segment": "pointfield.clouds.run"}
+# The learning half needs torch, and registration scipy; they are imported on first use so that
+# reading a cloud stays quick.
+_LEARNING = {"load_run": "pointfield.runs", "classify": "pointfield.clouds.run", "segment": "pointfield.clouds.run",
+             "register": "pointfield.registration"}
 
 
 def __getattr__(name: str) -> Any:
@@ -40,6 +43,7 @@ __all__ = [
     "load_run",
     "read",
     "read_chunks",
+    "register",
     "segment",
     "write",
 ]

@@ -9,7 +9,9 @@ Each subcommand is a thin layer over a Python function:
 =============================  ===================================================
 
 The streaming verbs (downsample, crop, tile, merge, ``info --stats``, and ``convert`` of a
-folder or with a scale option) are in :mod:`pointfield.cli.cloud_streaming`.
+folder or with a scale option) are in :mod:`pointfield.cli.cloud_streaming`; ``register`` is in
+:mod:`pointfield.cli.cloud_registration`; ``planes``, ``clusters`` and ``ground`` in
+:mod:`pointfield.cli.cloud_segmentation`.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from pointfield.cli import cloud_streaming
+from pointfield.cli import cloud_registration, cloud_segmentation, cloud_streaming
 from pointfield.errors import PointfieldError
 
 COLUMNS_HELP = (
@@ -126,6 +128,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     render.set_defaults(run=run_render)
 
     cloud_streaming.add_commands(commands)
+    cloud_registration.add_commands(commands)
+    cloud_segmentation.add_commands(commands)
 
 
 def read_options(path: Path, columns: int | None) -> dict[str, Any]:

@@ -1,0 +1,53 @@
+"""Registration: the rigid motion that maps one scan onto another, and how far to trust it.
+
+One file per piece, as open3d's ``pipelines.registration`` names them:
+
+=============================  ============================================================
+``register.py``                :func:`register`, the entry point: checks, voxel, method choice
+``icp.py``                     :func:`registration_icp` (numpy reference), small_gicp fast path,
+                               :func:`multiscale_icp` (coarse to fine)
+``estimation.py``              :class:`PointToPoint`, :class:`PointToPlane`,
+                               :class:`GeneralizedICP`, :class:`ColoredICP`
+``kernels.py``                 :class:`HuberLoss`, :class:`TukeyLoss` (robust reweighting)
+``fpfh.py``                    :func:`compute_fpfh`, Fast Point Feature Histograms
+``global_registration.py``     feature matching and RANSAC with correspondence checkers
+``result.py``                  :class:`RegistrationResult`, fitness, RMSE, information matrix
+``scan.py``                    :class:`Scan`, the arrays the above work on
+=============================  ============================================================
+"""
+
+from pointfield.registration.estimation import ColoredICP, GeneralizedICP, PointToPlane, PointToPoint, kabsch
+from pointfield.registration.fpfh import compute_fpfh
+from pointfield.registration.global_registration import (
+    DistanceChecker,
+    EdgeLengthChecker,
+    RANSACCriteria,
+    match_features,
+    ransac_on_matches,
+)
+from pointfield.registration.icp import (
+    ICPConvergenceCriteria,
+    multiscale_icp,
+    registration_icp,
+    registration_small_gicp,
+)
+from pointfield.registration.kernels import HuberLoss, L2Loss, TukeyLoss
+from pointfield.registration.register import (
+    METHODS,
+    aligned,
+    check_cloud,
+    check_transformation,
+    default_voxel,
+    global_registration,
+    register,
+)
+from pointfield.registration.result import RegistrationResult, evaluate, information_matrix
+from pointfield.registration.scan import Scan
+
+__all__ = [
+    "METHODS", "ColoredICP", "DistanceChecker", "EdgeLengthChecker", "GeneralizedICP", "HuberLoss",
+    "ICPConvergenceCriteria", "L2Loss", "PointToPlane", "PointToPoint", "RANSACCriteria", "RegistrationResult",
+    "Scan", "TukeyLoss", "aligned", "check_cloud", "check_transformation", "compute_fpfh", "default_voxel",
+    "evaluate", "global_registration", "information_matrix", "kabsch", "match_features", "multiscale_icp",
+    "ransac_on_matches", "register", "registration_icp", "registration_small_gicp",
+]

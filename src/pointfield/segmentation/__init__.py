@@ -1,0 +1,18 @@
+"""Classical segmentation, no training: RANSAC planes, density clusters, ground filtering.
+
+=================  ==============================================================
+``planes.py``      :func:`segment_planes`: RANSAC planes, largest first, with equations
+``clusters.py``    :func:`dbscan`: DBSCAN / Euclidean clusters
+``ground.py``      :func:`ground_mask`: the cloth simulation filter (``CSF``)
+=================  ==============================================================
+
+Each returns per-point labels that the ``pointfield cloud planes|clusters|ground`` verbs write
+back as a field of the cloud.
+"""
+
+from pointfield.segmentation.clusters import dbscan
+from pointfield.segmentation.ground import ground_classification, ground_mask, iou
+from pointfield.segmentation.planes import Plane, fit_plane, ransac_plane, segment_planes
+
+__all__ = ["Plane", "dbscan", "fit_plane", "ground_classification", "ground_mask", "iou", "ransac_plane",
+           "segment_planes"]
