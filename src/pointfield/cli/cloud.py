@@ -20,7 +20,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from pointfield.cli import cloud_streaming
+from pointfield.cli import cloud_streaming, cloud_volumes
 from pointfield.errors import PointfieldError
 
 COLUMNS_HELP = (
@@ -126,6 +126,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     render.set_defaults(run=run_render)
 
     cloud_streaming.add_commands(commands)
+    cloud_volumes.add_commands(commands)
 
 
 def read_options(path: Path, columns: int | None) -> dict[str, Any]:
@@ -175,6 +176,8 @@ def run_convert(args: argparse.Namespace) -> int:
 def run_render(args: argparse.Namespace) -> int:
     from pointfield.viz import render_file
 
+    if cloud_volumes.is_voxel_file(args.file):
+        return cloud_volumes.run_render_voxels(args)
     out = args.out or Path(args.file.with_suffix(".png").name)
     render_file(
         args.file,
