@@ -4,10 +4,14 @@
 :class:`VoxelGrid`                 sparse occupied voxels with per-voxel fields (voxels.py)
 :func:`voxelize_cloud` / ``_mesh`` a grid from points, or a mesh's surface or solid
 :func:`read_voxels` / ``write``    ``.binvox``, MagicaVoxel ``.vox``, ``.npz`` (files.py)
+:class:`SDFGrid`                   signed distances on a grid: trilinear queries, gradients, marching cubes (sdf.py)
+:func:`mesh_to_sdf`                a mesh's SDF, signed by the generalized winding number
+winding numbers, distances         of a triangle soup, clustered as Barill et al. (triangles.py)
 =================================  =====================================================
 """
 
 from pointfield.volumes.files import read_voxels, write_voxels
+from pointfield.volumes.sdf import SDFGrid, mesh_to_sdf
 from pointfield.volumes.voxels import (
     VoxelGrid,
     mesh_openness,
@@ -16,5 +20,14 @@ from pointfield.volumes.voxels import (
     voxelize_mesh,
 )
 
-__all__ = ["VoxelGrid", "mesh_openness", "openness_text", "read_voxels", "voxelize_cloud", "voxelize_mesh",
-           "write_voxels"]
+__all__ = [
+    "SDFGrid",
+    "VoxelGrid",
+    "mesh_openness",
+    "mesh_to_sdf",
+    "openness_text",
+    "read_voxels",
+    "voxelize_cloud",
+    "voxelize_mesh",
+    "write_voxels",
+]

@@ -44,7 +44,9 @@ from scipy.spatial import cKDTree
 
 BETA = 2.0
 """A cluster at least ``BETA`` of its radii from a query is summed as one dipole (Barill et al.'s default)."""
-TRIANGLES_PER_CLUSTER = 16
+TRIANGLES_PER_CLUSTER = 8
+MAX_SAMPLE_STEPS = 2048
+"""Samples along a triangle's longest edge at most (about two million on the triangle)."""
 PAIRS_PER_BATCH = 1 << 22
 """Query-triangle pairs evaluated at once: about 1 GB of float64 temporaries at most."""
 
@@ -171,9 +173,9 @@ def winding_numbers(queries: np.ndarray, clusters: TriangleClusters, batch: int 
 def closest_on_triangles(p: torch.Tensor, a: torch.Tensor, b: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
     """The point ``(P, 3)`` of each triangle ``(a, b, c)`` nearest ``p``, all ``(P, 3)`` (Ericson 5.1.5).
 
-    >>> z = torch.zeros(1, 3); x = torch.tensor([[1.0, 0, 0]]); y = torch.tensor([[0, 1.0, 0]])
-    >>> closest_on_triangles(torch.tensor([[0.2, 0.2, 5.0]]), z, x, y).tolist()
-    [[0.2, 0.2, 0.0]]
+    >>> z, x, y = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=torch.float64).split(1)
+    >>> closest_on_triangles(torch.tensor([[0.25, 0.5, 5.0]], dtype=torch.float64), z, x, y).tolist()
+    [[0.25, 0.5, 0.0]]
     """
     ab, ac, ap = b - a, c - a, p - a
     d1, d2 = (ab * ap).sum(1), (ac * ap).sum(1)
@@ -213,7 +215,7 @@ def surface_samples(clusters: TriangleClusters, spacing: float) -> np.ndarray:
     """Points on every triangle about ``spacing`` apart, its corners included (for distance bounds)."""
     corners = clusters.corners.cpu().numpy()
     longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
-    steps = np.clip(np.ceil(longest / spacing), 1, 64).astype(np.int64)
+    steps = np.clip(np.ceil(longest / spacing), 1, MAX_SAMPLE_STEPS).astype(np.int64)
     points = [corners.reshape(-1, 3)]
     for n in np.unique(steps):
         # A triangular lattice of barycentric weights (i, j, n - i - j) / n on the triangles with n steps.
