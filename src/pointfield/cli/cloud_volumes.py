@@ -2,6 +2,7 @@
 
 ===============================  ==================================================
 ``pointfield cloud voxelize``    :func:`pointfield.volumes.voxelize_cloud` / ``voxelize_mesh``
+``pointfield cloud sdf``         :func:`pointfield.volumes.mesh_to_sdf`, then :meth:`~pointfield.volumes.SDFGrid.to_mesh`
 ``cloud render X.binvox``        :meth:`pointfield.volumes.VoxelGrid.to_cloud`, drawn as a cloud
 ===============================  ==================================================
 """
@@ -38,6 +39,25 @@ def add_commands(commands: argparse._SubParsersAction) -> None:
     )
     voxelize.add_argument("--device", metavar="NAME", help="where --fill's winding numbers run: auto, cpu, cuda, ...")
     voxelize.set_defaults(run=run_voxelize)
+
+    sdf = commands.add_parser(
+        "sdf",
+        help="a mesh's signed distance field (.npz), and its zero level set as a closed mesh",
+        description="Signed distances from IN's triangles at the nodes of a grid over its box (negative inside; "
+        "the sign by the generalized winding number, so a mesh that is not quite closed still has an inside), "
+        "written to OUT (.npz: sdf, origin, spacing). --mesh also writes the zero level set by marching cubes: "
+        "one closed surface.",
+    )
+    sdf.add_argument("source", type=Path, metavar="IN", help="a mesh file (PLY, OFF, ...)")
+    sdf.add_argument("destination", type=Path, metavar="OUT", help="the grid, .npz")
+    size = sdf.add_mutually_exclusive_group()
+    size.add_argument("--voxel", type=float, metavar="S", help="node spacing, in IN's units")
+    size.add_argument("--resolution", type=int, metavar="N", help="nodes along the box's longest side (default 64)")
+    sdf.add_argument("--mesh", type=Path, metavar="FILE", help="also write the zero level set as a mesh")
+    sdf.add_argument("--memory", metavar="SIZE", default=DEFAULT_MEMORY,
+                     help=f"memory the grid's work may take (default {DEFAULT_MEMORY})")
+    sdf.add_argument("--device", metavar="NAME", help="auto, cpu, cuda, ...")
+    sdf.set_defaults(run=run_sdf)
 
 
 def is_voxel_file(path: Path) -> bool:
@@ -81,6 +101,39 @@ def run_voxelize(args: argparse.Namespace) -> int:
     kind = "solid" if args.fill else "surface" if isinstance(data, Mesh) and len(data.faces) else "occupied"
     print(f"wrote {args.destination}: {len(grid):,} {kind} voxels of {args.voxel:g} in a "
           f"{' x '.join(map(str, grid.shape))} grid{note}")
+    return 0
+
+
+def run_sdf(args: argparse.Namespace) -> int:
+    import pointfield
+    from pointfield.clouds.mesh import Mesh
+    from pointfield.geometry.meshes import MESH_SUFFIXES, write_mesh
+    from pointfield.volumes import mesh_to_sdf, openness_text
+
+    try:
+        budget = parse_memory(args.memory)
+    except ValueError as error:
+        raise PointfieldError(str(error)) from None
+    if args.voxel is not None and not args.voxel > 0:
+        raise PointfieldError(f"--voxel must be positive, got {args.voxel}")
+    if args.resolution is not None and args.resolution < 8:
+        raise PointfieldError(f"--resolution must be at least 8, got {args.resolution}")
+    if args.destination.suffix.lower() != ".npz":
+        raise PointfieldError(f"{args.destination}: an SDF grid is written as .npz")
+    if args.mesh is not None and args.mesh.suffix.lower() not in MESH_SUFFIXES:
+        raise PointfieldError(f"{args.mesh}: a mesh is written as {', '.join(MESH_SUFFIXES)}")
+    mesh = pointfield.read(args.source)
+    if not isinstance(mesh, Mesh) or not len(mesh.faces):
+        raise PointfieldError(f"{args.source}: no faces; a signed distance field needs a mesh")
+    grid = mesh_to_sdf(mesh, voxel=args.voxel, resolution=args.resolution, max_bytes=budget, device=args.device)
+    level_set = grid.to_mesh() if args.mesh else None
+    grid.save(args.destination)
+    print(f"wrote {args.destination}: {' x '.join(map(str, grid.shape))} signed distances, spacing {grid.spacing:.4g}; "
+          f"the mesh is {openness_text(grid.metadata['openness'])}, and its winding number was ambiguous "
+          f"(0.25..0.75) at {grid.metadata['ambiguous_nodes']:.1%} of the nodes where it was evaluated")
+    if level_set is not None:
+        write_mesh(args.mesh, level_set)
+        print(f"wrote {args.mesh}: the zero level set, {len(level_set.faces):,} faces")
     return 0
 
 

@@ -59,6 +59,8 @@ class TriangleClusters:
     each cluster's triangles in it; ``centre`` ``(K, 3)`` the area-weighted centroid, ``radius``
     ``(K,)`` the largest distance from it to a corner; ``area_vector`` ``(K, 3)``: sum of
     ``0.5 (b - a) x (c - a)`` over the cluster's triangles. ``order`` maps back to the input rows.
+    ``triangle_centre`` ``(T, 3)`` and ``triangle_radius`` ``(T,)``: each triangle's own sphere
+    (centroid, farthest corner), for pruning distance candidates.
     """
 
     corners: torch.Tensor
@@ -68,6 +70,8 @@ class TriangleClusters:
     radius: torch.Tensor
     area_vector: torch.Tensor
     order: np.ndarray
+    triangle_centre: torch.Tensor
+    triangle_radius: torch.Tensor
 
     @classmethod
     def build(cls, vertices: np.ndarray, triangles: np.ndarray, device: torch.device | str = "cpu") -> TriangleClusters:
@@ -104,8 +108,10 @@ class TriangleClusters:
         def tensor(a: np.ndarray) -> torch.Tensor:
             return torch.as_tensor(a, device=device)
 
+        own_centre = corners.mean(axis=1)
+        own_radius = np.linalg.norm(corners - own_centre[:, None], axis=2).max(axis=1)
         return cls(tensor(corners), tensor(first), tensor(count), tensor(centre), tensor(radius),
-                   tensor(area_vector), order)
+                   tensor(area_vector), order, tensor(own_centre), tensor(own_radius))
 
     def __len__(self) -> int:
         return len(self.start)
@@ -255,8 +261,11 @@ def unsigned_distances(queries: np.ndarray, clusters: TriangleClusters, spacing:
         pair_query, pair_cluster = (reach <= u[:, None] * (1 + 1e-9) + 1e-12).nonzero(as_tuple=True)
         best = u.clone()
         for query, triangle in _pair_batches(pair_query, pair_cluster, clusters):
-            tri = corners[triangle]
+            # The triangle's own bounding sphere first: most of a near cluster's triangles are too far.
             p = q[query]
+            keep = (p - clusters.triangle_centre[triangle]).norm(dim=1) - clusters.triangle_radius[triangle] <= u[query]
+            query, triangle, p = query[keep], triangle[keep], p[keep]
+            tri = corners[triangle]
             d = (closest_on_triangles(p, tri[:, 0], tri[:, 1], tri[:, 2]) - p).norm(dim=1)
             best.scatter_reduce_(0, query, d, reduce="amin")
         bound[exact[at : at + batch]] = best.cpu().numpy()
