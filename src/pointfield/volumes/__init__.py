@@ -6,11 +6,13 @@
 :func:`read_voxels` / ``write``    ``.binvox``, MagicaVoxel ``.vox``, ``.npz`` (files.py)
 :class:`SDFGrid`                   signed distances on a grid: trilinear queries, gradients, marching cubes (sdf.py)
 :func:`mesh_to_sdf`                a mesh's SDF, signed by the generalized winding number
+:func:`poisson_surface`            points with normals to a watertight mesh (Poisson, FFT on a grid; poisson.py)
 winding numbers, distances         of a triangle soup, clustered as Barill et al. (triangles.py)
 =================================  =====================================================
 """
 
 from pointfield.volumes.files import read_voxels, write_voxels
+from pointfield.volumes.poisson import poisson_surface
 from pointfield.volumes.sdf import SDFGrid, mesh_to_sdf
 from pointfield.volumes.voxels import (
     VoxelGrid,
@@ -26,6 +28,7 @@ __all__ = [
     "mesh_openness",
     "mesh_to_sdf",
     "openness_text",
+    "poisson_surface",
     "read_voxels",
     "voxelize_cloud",
     "voxelize_mesh",

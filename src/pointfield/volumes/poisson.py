@@ -112,7 +112,7 @@ def poisson_surface(cloud: PointCloud, depth: int = 8, scale: float = 1.1, max_b
     laplacian[0, 0, 0] = 1.0
     spectrum = divergence * smooth / laplacian
     spectrum[0, 0, 0] = 0.0
-    chi = np.fft.irfftn(spectrum, s=(size, size, size)).astype(np.float32)
+    chi = np.fft.irfftn(spectrum, s=(size, size, size), axes=(0, 1, 2)).astype(np.float32)
     del spectrum, divergence
     iso = float(_sample(chi, local).mean())
     from skimage.measure import marching_cubes
