@@ -16,7 +16,9 @@ The FFT's domain is periodic, so the grid is padded by an eighth on every side f
 to meet. V is each point's normal splatted trilinearly onto the eight nodes around it, then
 smoothed by a Gaussian of one cell (the role of PoissonRecon's B-spline kernel). The surface is
 chi's level at the mean of chi over the points (Kazhdan's choice), by marching cubes: closed,
-because chi is defined everywhere in a box that the level set does not reach.
+because chi is defined everywhere in a box that the level set does not reach (degenerate
+triangles, where the level passes exactly through a node, are dropped: kept, they make edges of
+four faces).
 
 What this is not: screened Poisson (Kazhdan and Hoppe 2013), which adds ``alpha * sum_i (chi(p_i) -
 iso)^2`` to pull the surface onto the points, and its octree, which refines only near them.
@@ -117,7 +119,8 @@ def poisson_surface(cloud: PointCloud, depth: int = 8, scale: float = 1.1, max_b
     iso = float(_sample(chi, local).mean())
     from skimage.measure import marching_cubes
 
-    vertices, faces, _, _ = marching_cubes(chi, iso, spacing=(h, h, h), gradient_direction="ascent")
+    vertices, faces, _, _ = marching_cubes(chi, iso, spacing=(h, h, h), gradient_direction="ascent",
+                                           allow_degenerate=False)
     # Faces front the way the points' normals point: along them, or against them where chi falls that way.
     along = float(np.mean(_sample(chi, local + normals) - _sample(chi, local - normals)))
     faces = faces[:, ::-1] if along > 0 else faces
