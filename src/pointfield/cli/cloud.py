@@ -22,6 +22,7 @@ from typing import Any
 
 from pointfield.cli import cloud_streaming, cloud_volumes
 from pointfield.errors import PointfieldError
+from pointfield.volumes.files import is_voxel_file
 
 COLUMNS_HELP = (
     "float32 values per point of a raw .bin scan: 4 (KITTI x y z intensity), 5 (nuScenes), "
@@ -176,7 +177,7 @@ def run_convert(args: argparse.Namespace) -> int:
 def run_render(args: argparse.Namespace) -> int:
     from pointfield.viz import render_file
 
-    if cloud_volumes.is_voxel_file(args.file):
+    if is_voxel_file(args.file):
         return cloud_volumes.run_render_voxels(args)
     out = args.out or Path(args.file.with_suffix(".png").name)
     render_file(

@@ -11,7 +11,6 @@
 from __future__ import annotations
 
 import argparse
-import zipfile
 from pathlib import Path
 
 from pointfield.errors import PointfieldError
@@ -73,21 +72,6 @@ def add_commands(commands: argparse._SubParsersAction) -> None:
     poisson.add_argument("--depth", type=int, default=8, help="2^depth cells across the box (default 8)")
     poisson.add_argument("--memory", metavar="SIZE", default="4G", help="memory the grid may take (default 4G)")
     poisson.set_defaults(run=run_poisson)
-
-
-def is_voxel_file(path: Path) -> bool:
-    """``.binvox`` and ``.vox`` files, and ``.npz`` archives written by :func:`~pointfield.volumes.write_voxels`."""
-    suffix = path.suffix.lower()
-    if suffix in (".binvox", ".vox"):
-        return True
-    if suffix == ".npz" and path.is_file():
-        try:
-            with zipfile.ZipFile(path) as archive:
-                names = set(archive.namelist())
-        except (zipfile.BadZipFile, OSError):
-            return False
-        return {"coords.npy", "origin.npy", "size.npy"} <= names
-    return False
 
 
 def run_voxelize(args: argparse.Namespace) -> int:

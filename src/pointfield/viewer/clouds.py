@@ -51,6 +51,7 @@ from pointfield.clouds.ops import random_sample
 from pointfield.errors import FormatError, PointfieldError
 from pointfield.viewer.server import Viewer
 from pointfield.viz.render import normalised_colours, point_colours
+from pointfield.volumes.files import is_voxel_file, read_voxels
 
 DEFAULT_MAX_POINTS = 2_000_000
 WORKER_ABOVE_BYTES = 16 * 2**20
@@ -118,7 +119,7 @@ def read_prepared(path: Path, budget: int) -> Prepared | str:
     errors, whose constructors take two arguments, would not unpickle.
     """
     try:
-        cloud = read(path)
+        cloud = read_voxels(path).to_cloud() if is_voxel_file(path) else read(path)
         if not isinstance(cloud, PointCloud):
             raise FormatError(path, "has no x, y, z coordinates to show")
         return prepare(cloud, budget)

@@ -58,6 +58,22 @@ NPZ_MAX_EXPANSION = 1100
 """Deflate expands at most 1032-fold: a member claiming more bytes per compressed byte lies."""
 
 
+def is_voxel_file(path: str | os.PathLike[str]) -> bool:
+    """``.binvox`` and ``.vox`` files, and ``.npz`` archives written by :func:`write_voxels` (by their members)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in (".binvox", ".vox"):
+        return True
+    if suffix == ".npz" and path.is_file():
+        try:
+            with zipfile.ZipFile(path) as archive:
+                names = set(archive.namelist())
+        except (zipfile.BadZipFile, OSError):
+            return False
+        return {"coords.npy", "origin.npy", "size.npy"} <= names
+    return False
+
+
 def read_voxels(path: str | os.PathLike[str]) -> VoxelGrid:
     """Read a ``.binvox``, ``.vox`` or voxel ``.npz`` file (by its first bytes, else its suffix)."""
     path = Path(path)
