@@ -74,10 +74,26 @@ def add_commands(commands: argparse._SubParsersAction) -> None:
     poisson.set_defaults(run=run_poisson)
 
 
+def may_hold_faces(path: Path) -> bool:
+    """Whether ``path`` may be a mesh: a PLY whose header declares faces, or a file of a format that holds them (OFF)."""
+    from pointfield.clouds.formats.ply import is_ply, parse_header
+    from pointfield.clouds.formats.ply.header import HEADER_LIMIT
+    from pointfield.clouds.formats.registry import format_of
+
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    with open(path, "rb") as file:
+        head = file.read(HEADER_LIMIT)
+    if is_ply(head):
+        return any(e.name == "face" and e.count > 0 for e in parse_header(path, head).elements)
+    return format_of(path).holds_faces
+
+
 def run_voxelize(args: argparse.Namespace) -> int:
     import pointfield
     from pointfield.clouds.mesh import Mesh
     from pointfield.volumes import openness_text, voxelize_cloud, voxelize_mesh, write_voxels
+    from pointfield.volumes.streamed import voxelize_file
 
     try:
         budget = parse_memory(args.memory)
@@ -87,17 +103,20 @@ def run_voxelize(args: argparse.Namespace) -> int:
         raise PointfieldError(f"--voxel must be positive, got {args.voxel}")
     if args.destination.suffix.lower() not in (".binvox", ".vox", ".npz"):
         raise PointfieldError(f"{args.destination}: voxel grids are written as .binvox, .vox or .npz")
-    data = pointfield.read(args.source)
+    # A file that may hold faces is read whole; a cloud a chunk at a time, so that one bigger than
+    # memory voxelizes within --memory.
+    data = pointfield.read(args.source) if may_hold_faces(args.source) else None
     if isinstance(data, Mesh) and len(data.faces):
         grid = voxelize_mesh(data, args.voxel, fill=args.fill, max_bytes=budget, device=args.device)
         note = f"; the mesh is {openness_text(grid.metadata['openness'])}"
+        kind = "solid" if args.fill else "surface"
     else:
         if args.fill:
             raise PointfieldError(f"{args.source}: --fill needs a mesh (faces); this file holds points only")
-        grid = voxelize_cloud(data, args.voxel)
+        grid = voxelize_file(args.source, args.voxel, memory=budget) if data is None else voxelize_cloud(data, args.voxel)
         note = f" from {grid.metadata['points']:,} points"
+        kind = "occupied"
     write_voxels(args.destination, grid)
-    kind = "solid" if args.fill else "surface" if isinstance(data, Mesh) and len(data.faces) else "occupied"
     print(f"wrote {args.destination}: {len(grid):,} {kind} voxels of {args.voxel:g} in a "
           f"{' x '.join(map(str, grid.shape))} grid{note}")
     return 0
