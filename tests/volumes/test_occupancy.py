@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pointfield.volumes.occupancy import OccupancyMap, traverse
+from pointfield.volumes.occupancy import OccupancyMap, traverse, write_octomap
 
 ROOM = (np.array([0.05, 0.05, 0.05]), np.array([3.95, 3.95, 2.95]))
 """Walls in the middle of 0.1 cells, so that no wall lies on a cell face."""
@@ -81,3 +81,14 @@ def test_the_map_agrees_with_octomap_cell_for_cell():
     nodes = [tree.search(c) for c in centres]
     theirs = np.array([-1 if node is None else int(tree.isNodeOccupied(node)) for node in nodes])
     assert (ours.state(centres) == theirs).mean() > 0.999
+
+
+def test_a_bt_file_reads_back_in_octomap_with_every_cell_as_it_was(tmp_path):
+    octomap = pytest.importorskip("pyoctomap")
+    ours = mapped()
+    write_octomap(tmp_path / "room.bt", ours)
+    tree = octomap.OcTree(0.1)
+    assert tree.readBinary(str(tmp_path / "room.bt"))
+    centres = ours.to_grid("known").centres()
+    theirs = np.array([-1 if (node := tree.search(c)) is None else int(tree.isNodeOccupied(node)) for c in centres])
+    assert np.array_equal(ours.state(centres), theirs)

@@ -15,15 +15,19 @@ ray longer than ``max_range`` marks free space up to that range and no hit (Octo
 
 Cells are ``floor(p / size)`` on a lattice through the world origin, as in OctoMap (within
 ``2^20`` cells of it along each axis). The map is sparse: sorted cell keys and their log-odds.
+:func:`write_octomap` writes it as OctoMap's ``.bt``, which OctoMap's tools and pyoctomap read.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from pointfield.atomic import atomic_path
 from pointfield.errors import PointfieldError
 from pointfield.volumes.voxels import VoxelGrid
 
@@ -161,3 +165,65 @@ class OccupancyMap:
         probability = (1 / (1 + np.exp(-self.log_odds[chosen]))).astype(np.float32)
         return VoxelGrid(cells - low, low * self.size, self.size, {"probability": probability},
                          metadata={"occupancy": which})
+
+
+OCTOMAP_DEPTH = 16
+OCTOMAP_OFFSET = 1 << (OCTOMAP_DEPTH - 1)
+
+
+def _morton(keys: np.ndarray) -> np.ndarray:
+    """48-bit Morton codes of ``(N, 3)`` 16-bit OctoMap keys: at each level, bit x | y << 1 | z << 2 (OctoMap's child index)."""
+    code = np.zeros(len(keys), np.int64)
+    for bit in range(OCTOMAP_DEPTH):
+        for axis in range(3):
+            code |= ((keys[:, axis] >> bit) & 1).astype(np.int64) << (3 * bit + axis)
+    return code
+
+
+def write_octomap(path: str | os.PathLike[str], occupancy: OccupancyMap) -> None:
+    """Write the map as an OctoMap binary tree (``.bt``), as ``OcTree::writeBinary`` does, atomically.
+
+    OctoMap's binary format keeps each cell as occupied or free (no probability): after a header,
+    the tree depth first, two bytes per inner node giving each of its 8 children 2 bits -- 00
+    unknown, 01 occupied leaf, 10 free leaf, 11 inner node -- children 0..3 in the first byte,
+    4..7 in the second, child ``i`` at bits ``2i`` (low) and ``2i + 1``. Cells must lie within
+    2^15 of the origin (OctoMap's 16-level key space). The tree is written unpruned.
+    """
+    cells = key_cells(occupancy.keys) + OCTOMAP_OFFSET
+    if len(cells) and (cells.min() < 0 or cells.max() >= 1 << OCTOMAP_DEPTH):
+        raise PointfieldError(f"{path}: a cell lies more than {OCTOMAP_OFFSET:,} voxels from the origin, beyond "
+                              "OctoMap's 16-level keys: use a larger voxel")
+    code = _morton(cells)
+    order = np.argsort(code)
+    code, occupied = code[order], (occupancy.log_odds > 0)[order]
+    out = bytearray()
+    nodes = 1
+
+    def node(level: int, lo: int, hi: int) -> None:
+        """Write the node whose leaves are ``code[lo:hi]``, ``level`` levels below the root."""
+        nonlocal nodes
+        shift = 3 * (OCTOMAP_DEPTH - 1 - level)
+        child = (code[lo:hi] >> shift) & 7
+        bounds = np.searchsorted(child, np.arange(9)) + lo
+        bits = 0
+        inner = []
+        for i in range(8):
+            a, b = int(bounds[i]), int(bounds[i + 1])
+            if a == b:
+                continue
+            nodes += 1
+            if level == OCTOMAP_DEPTH - 1:
+                bits |= (0b10 if occupied[a] else 0b01) << (2 * i)  # bit 2i + 1 set: occupied; bit 2i: free
+            else:
+                bits |= 0b11 << (2 * i)
+                inner.append((a, b))
+        out.extend((bits & 0xFF, bits >> 8))
+        for a, b in inner:
+            node(level + 1, a, b)
+
+    if len(code):
+        node(0, 0, len(code))
+    header = (f"# Octomap OcTree binary file\n# written by pointfield\nid OcTree\nsize {nodes if len(code) else 0}\n"
+              f"res {occupancy.size!r}\ndata\n").encode("ascii")
+    with atomic_path(Path(path)) as tmp:
+        tmp.write_bytes(header + bytes(out))
