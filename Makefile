@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration clean
+.PHONY: demo test lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -52,7 +52,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration
+bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -122,6 +122,19 @@ bench-browser-cost: $(BIN)/.chromium
 # TinyNeRF, the hash-grid field and splats on lego in one run (about 45 minutes on 2 cores).
 bench-lego: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_lego.py
+
+# Mesh to signed distance grid against mesh2sdf and open3d on the ModelNet meshes (issue 46); finer: make bench-sdf SDF_SIZE=64
+SDF_SIZE ?= 32
+bench-sdf: $(BIN)/.open3d
+	$(BIN)/python benchmarks/bench_sdf.py --size $(SDF_SIZE)
+
+# Armadillo's points with normals to a watertight mesh against open3d's screened Poisson at depth 8 (issue 46)
+bench-poisson: $(BIN)/.open3d
+	$(BIN)/python benchmarks/bench_poisson.py
+
+# Occupancy maps from the RGB-D living room against OctoMap (pyoctomap) per scan (issue 46)
+bench-occupancy: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_occupancy.py
 
 # The GPU path (issue 19): needs a CUDA GPU, so it is not part of `make bench`. A torch build with
 # CUDA goes in first: make bench-gpu TORCH="torch==2.13.0 --index-url https://download.pytorch.org/whl/cu126".

@@ -33,7 +33,6 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 import small_gicp
-from harness import Record, interleaved
 from scipy.spatial.transform import Rotation
 
 import pointfield
@@ -49,6 +48,8 @@ from pointfield.registration import (
     registration_small_gicp,
 )
 from pointfield.registration.icp import solver_threads
+
+from harness import Record, interleaved
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 FRAGMENTS = DATA / "registration" / "open3d_fragment_cloud_bin_0.pcd", DATA / "registration" / "open3d_fragment_cloud_bin_1.pcd"

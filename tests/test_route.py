@@ -15,6 +15,7 @@ from pointfield.cli import build_parser, main
 from pointfield.errors import PointfieldError
 from pointfield.route import SCHEMA, format_route, inspect_path, parse_task, route
 from pointfield.route import inputs as route_inputs
+from pointfield.volumes import read_voxels
 
 # -- fixtures ------------------------------------------------------------------------------------
 
@@ -240,8 +241,9 @@ def test_a_scan_for_a_robot_becomes_voxels_whose_python_runs(shared_data, tmp_pa
     assert (answer.task, answer.representation) == ("collision", "voxels")
     monkeypatch.chdir(tmp_path)
     exec("\n".join(answer.python), {})  # noqa: S102  (the python lines the router prints)
-    voxels = pointfield.read(tmp_path / "000008-voxels.ply")
-    assert 0 < len(voxels) < 17238  # one point per occupied 5 cm voxel of the 17,238-point scan
+    voxels = read_voxels(tmp_path / "000008-voxels.npz")
+    assert 0 < len(voxels) < 17238  # the occupied 5 cm voxels of the 17,238-point scan
+    assert f"pointfield cloud voxelize {shared_data / 'kitti/mmdet3d_demo/000008.bin'}" in answer.commands[1]
 
 
 def test_a_scan_for_a_mesh_gets_python_that_writes_it_with_normals(shared_data, tmp_path, monkeypatch):

@@ -22,8 +22,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-from pointfield.cli import cloud_registration, cloud_segmentation, cloud_streaming
+from pointfield.cli import cloud_registration, cloud_segmentation, cloud_streaming, cloud_volumes
 from pointfield.errors import PointfieldError
+from pointfield.volumes.files import is_voxel_file
 
 COLUMNS_HELP = (
     "float32 values per point of a raw .bin scan: 4 (KITTI x y z intensity), 5 (nuScenes), "
@@ -130,6 +131,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     cloud_streaming.add_commands(commands)
     cloud_registration.add_commands(commands)
     cloud_segmentation.add_commands(commands)
+    cloud_volumes.add_commands(commands)
 
 
 def read_options(path: Path, columns: int | None) -> dict[str, Any]:
@@ -179,6 +181,8 @@ def run_convert(args: argparse.Namespace) -> int:
 def run_render(args: argparse.Namespace) -> int:
     from pointfield.viz import render_file
 
+    if is_voxel_file(args.file):
+        return cloud_volumes.run_render_voxels(args)
     out = args.out or Path(args.file.with_suffix(".png").name)
     render_file(
         args.file,

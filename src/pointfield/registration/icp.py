@@ -61,9 +61,8 @@ def registration_icp(source: Scan, target: Scan, max_distance: float, init: np.n
     transformation = np.eye(4) if init is None else np.asarray(init, np.float64).copy()
     fitness, rmse, pairs = evaluate(source.points, target.tree, transformation, max_distance)
     iterations = 0
-    for iterations in range(1, criteria.max_iteration + 1):
-        if len(pairs) < 3:
-            break
+    while iterations < criteria.max_iteration and len(pairs) >= 3:
+        iterations += 1
         moved = transform_points(source.points, transformation)
         step = estimation.step(moved, source, target, pairs, transformation[:3, :3])
         transformation = step @ transformation

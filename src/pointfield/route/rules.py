@@ -175,9 +175,9 @@ def _cloud(given: Input, task: str | None) -> Plan:
                     [_pf("segment", "train", "DATA", "--label-field", label or "label", "--out", "runs/segment"),
                      _predict("segment", "runs/segment", source)], notes=notes)
     if task == "mesh":
-        notes = [("pointfield makes meshes from trained scene runs (TSDF fusion of rendered depth), not from bare "
-                  "points: give the PLY with normals to a Poisson or ball-pivoting mesher (Open3D, MeshLab), or "
-                  "route the photos of the object with --task mesh")]
+        notes = [("cloud poisson closes one watertight surface through points with normals (Poisson "
+                  "reconstruction): right for a scanned object; an open scan (a room, a street) gets closed where "
+                  "nothing was seen, so for those route the photos with --task mesh")]
         python = [] if _has_normals(details) else [
             "import pointfield",
             "from pointfield.clouds.ops import farthest_point_subset",
@@ -189,12 +189,16 @@ def _cloud(given: Input, task: str | None) -> Plan:
         commands = [_pf("cloud", "info", source)]
         if _has_normals(details) and details["format"] != "ply":
             commands.append(_pf("cloud", "convert", source, f"{name}-normals.ply"))
+        meshed = source if _has_normals(details) else f"{name}-normals.ply"  # the Python below writes it
+        commands.append(_pf("cloud", "poisson", meshed, f"{name}-mesh.ply", "--depth", "8"))
         return Plan(MESH, "A game engine wants triangles, and a surface through scanned points needs their normals "
                     "to know inside from outside", commands, python, notes)
     if task == "collision":
         return Plan(VOXELS, "A planner asks whether a cell is free: an occupancy grid answers that in constant time, "
                     "in memory bounded by the volume, not by how densely the sensor sampled it",
-                    [_pf("cloud", "info", source)], _voxel_python(f"pointfield.read({source!r})", f"{name}-voxels.ply"),
+                    [_pf("cloud", "info", source), _pf("cloud", "voxelize", source, f"{name}-voxels.npz", "--voxel",
+                                                       str(VOXEL))],
+                    _voxel_python(f"pointfield.read({source!r})", f"{name}-voxels.npz"),
                     [(f"voxel side {VOXEL} in the file's units (metres for lidar and LAS): choose your robot's "
                       "resolution")])
     if task == "measure":
@@ -230,9 +234,14 @@ def _mesh(given: Input, task: str | None) -> Plan:
                     [_pf(task, "train", data, "--model", "pointnet", "--out", run), _predict(task, run, source)],
                     notes=notes)
     if task == "collision":
-        sampled = f"pointfield.read({source!r}).sample_surface(200_000, seed=0)"
-        return Plan(VOXELS, "A planner asks whether a cell is free: sample the surface, then keep one point per "
-                    "occupied voxel", [_pf("cloud", "info", source)], _voxel_python(sampled, f"{name}-voxels.ply"),
+        return Plan(VOXELS, "A planner asks whether a cell is free: the voxels the mesh's surface passes through "
+                    "and those it encloses (found by its winding number, so small holes do not leak)",
+                    [_pf("cloud", "info", source),
+                     _pf("cloud", "voxelize", source, f"{name}-voxels.binvox", "--voxel", str(VOXEL), "--fill")],
+                    ["import pointfield",
+                     "from pointfield.volumes import voxelize_mesh, write_voxels",
+                     f"grid = voxelize_mesh(pointfield.read({source!r}), {VOXEL}, fill=True)",
+                     f"write_voxels({name + '-voxels.binvox'!r}, grid)"],
                     [f"voxel side {VOXEL} in the mesh's units: choose your robot's resolution"])
     if task == "mesh":
         return Plan(MESH, "It is already a mesh: convert it to what the engine imports (PLY here; GLB or OBJ "
@@ -392,7 +401,7 @@ def _captured(given: Input, task: str | None) -> Plan:
         notes.append(f"voxel side {VOXEL} in the scene's units, which structure from motion leaves unscaled")
         return Plan(VOXELS, "A planner asks whether a cell is free: reconstruct, export a cloud, and keep one point "
                     "per occupied voxel", [*steps, ngp, export],
-                    _voxel_python(f"pointfield.read({cloud!r})", f"{name}-voxels.ply"), notes)
+                    _voxel_python(f"pointfield.read({cloud!r})", f"{name}-voxels.npz"), notes)
     if task == "novel-views":
         why = ("an object on a transparent background, where the hash grid is the most accurate (lego: 32.7 against "
                "splats' 30.1 dB)" if capture.object else "no sparse points to start splats from")
@@ -438,7 +447,7 @@ def _run(given: Input, task: str | None) -> Plan:
     if task == "collision":
         return Plan(VOXELS, "A planner asks whether a cell is free: export the run's geometry as a cloud and keep one "
                     "point per occupied voxel", [export],
-                    _voxel_python(f"pointfield.read({cloud!r})", f"{name}-voxels.ply"),
+                    _voxel_python(f"pointfield.read({cloud!r})", f"{name}-voxels.npz"),
                     [*notes, f"voxel side {VOXEL} in the scene's units"])
     if group == "splat":
         return Plan(SPLATS, "A trained splat run: look at it, export the standard .ply that every splat viewer "
@@ -513,9 +522,9 @@ def _training_options(width: int | None, height: int | None, held_out: bool) -> 
 def _voxel_python(cloud: str, out: str) -> list[str]:
     return [
         "import pointfield",
-        "from pointfield.clouds.ops import voxel_downsample",
-        f"occupied = voxel_downsample({cloud}, {VOXEL})  # one point per occupied voxel",
-        f"pointfield.write({out!r}, occupied)",
+        "from pointfield.volumes import voxelize_cloud, write_voxels",
+        f"grid = voxelize_cloud({cloud}, {VOXEL})  # the occupied voxels, with their point counts",
+        f"write_voxels({out!r}, grid)",
     ]
 
 

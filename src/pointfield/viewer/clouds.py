@@ -52,6 +52,7 @@ from pointfield.clouds.sensor import SensorView, sensor_view
 from pointfield.errors import FormatError, PointfieldError
 from pointfield.viewer.server import Viewer
 from pointfield.viz.render import normalised_colours, point_colours
+from pointfield.volumes.files import is_voxel_file, read_voxels
 
 DEFAULT_MAX_POINTS = 2_000_000
 WORKER_ABOVE_BYTES = 16 * 2**20
@@ -123,7 +124,7 @@ def read_prepared(path: Path, budget: int) -> Prepared | str:
     errors, whose constructors take two arguments, would not unpickle.
     """
     try:
-        cloud = read(path)
+        cloud = read_voxels(path).to_cloud() if is_voxel_file(path) else read(path)
         if not isinstance(cloud, PointCloud):
             raise FormatError(path, "has no x, y, z coordinates to show")
         return prepare(cloud, budget)

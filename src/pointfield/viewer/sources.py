@@ -33,6 +33,7 @@ from pointfield.clouds.formats.registry import format_of
 from pointfield.errors import PointfieldError
 from pointfield.viewer.clouds import DEFAULT_MAX_POINTS
 from pointfield.viewer.server import DEFAULT_HOST, DEFAULT_PORT, Viewer, start_viewer
+from pointfield.volumes.files import is_voxel_file
 
 SHOWN_BY = {
     "cloud": ("pointfield.viewer.clouds", "show_cloud"),
@@ -68,6 +69,8 @@ def kind_of(path: str | os.PathLike[str]) -> str:
         return "scene"
     if is_splat_file(path):
         return "splats"
+    if is_voxel_file(path):
+        return "cloud"  # shown as its voxel centres (viewer/clouds.py)
     format_of(path)  # raises FormatError for a file no cloud reader knows
     return "cloud"
 

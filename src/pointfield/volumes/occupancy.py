@@ -1,0 +1,229 @@
+"""Occupancy maps for robots: occupied, free and unknown space from scans and their sensor origins, as OctoMap.
+
+Each scan is a set of points and the sensor origin they were seen from. As OctoMap's
+``insertPointCloud`` does (Hornung et al. 2013), every ray from the origin to a point passes
+through free cells and ends in an occupied one; per scan, a cell is updated once (occupied wins
+over free when rays both end and pass there), in log-odds:
+
+    L(cell) <- clamp(L(cell) + log(p / (1 - p)), L_min, L_max)
+    p = 0.7 for a hit, 0.4 for a miss; clamped to probabilities [0.12, 0.97]   (OctoMap's defaults)
+
+A cell is occupied when ``L > 0`` (probability above 1/2), free when ``L <= 0``, unknown when no
+ray reached it. The cells a ray passes through are found exactly by Amanatides and Woo's voxel
+traversal (the 3D DDA OctoMap's ``computeRayKeys`` runs), vectorised over the rays of a scan. A
+ray longer than ``max_range`` marks free space up to that range and no hit (OctoMap's rule).
+
+Cells are ``floor(p / size)`` on a lattice through the world origin, as in OctoMap (within
+``2^20`` cells of it along each axis). The map is sparse: sorted cell keys and their log-odds.
+:func:`write_octomap` writes it as OctoMap's ``.bt``, which OctoMap's tools and pyoctomap read.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pointfield.atomic import atomic_path
+from pointfield.errors import PointfieldError
+from pointfield.volumes.voxels import VoxelGrid
+
+
+def logit(p: float) -> float:
+    return float(np.log(p / (1 - p)))
+
+
+HIT, MISS = logit(0.7), logit(0.4)
+CLAMP = (logit(0.12), logit(0.97))
+KEY_BITS = 21
+KEY_OFFSET = 1 << (KEY_BITS - 1)
+
+
+def cell_keys(cells: np.ndarray) -> np.ndarray:
+    """``(N,)`` int64 keys of ``(N, 3)`` integer cells, increasing in lexicographic order."""
+    shifted = cells.astype(np.int64) + KEY_OFFSET
+    if len(shifted) and (shifted.min() < 0 or shifted.max() >= 1 << KEY_BITS):
+        raise PointfieldError(f"a cell lies more than {KEY_OFFSET:,} voxels from the origin: use a larger voxel")
+    return (shifted[:, 0] << (2 * KEY_BITS)) | (shifted[:, 1] << KEY_BITS) | shifted[:, 2]
+
+
+def key_cells(keys: np.ndarray) -> np.ndarray:
+    mask = (1 << KEY_BITS) - 1
+    return np.stack([keys >> (2 * KEY_BITS), (keys >> KEY_BITS) & mask, keys & mask], axis=1) - KEY_OFFSET
+
+
+def traverse(start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cells each segment passes through before its end cell (Amanatides and Woo), in voxel units.
+
+    ``start``, ``end`` ``(R, 3)`` float64 positions divided by the voxel size. Returns ``(ray, cells)``:
+    ``(M,)`` the segment of each visited cell and ``(M, 3)`` the cells, the start cell included and
+    the end cell not. A segment crosses exactly ``|end_cell - start_cell|_1`` cell faces.
+    """
+    cell = np.floor(start).astype(np.int64)
+    last = np.floor(end).astype(np.int64)
+    direction = end - start
+    step = np.sign(direction).astype(np.int64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        delta = np.where(direction != 0, 1.0 / np.abs(direction), np.inf)
+        boundary = np.where(step > 0, cell + 1 - start, start - cell)
+        t_max = np.where(direction != 0, boundary * delta, np.inf)
+    remaining = np.abs(last - cell).sum(axis=1)
+    rays, cells = [np.flatnonzero(remaining > 0)], [cell[remaining > 0]]
+    active = np.flatnonzero(remaining > 0)
+    while len(active):
+        axis = np.argmin(t_max[active], axis=1)
+        cell[active, axis] += step[active, axis]
+        t_max[active, axis] += delta[active, axis]
+        remaining[active] -= 1
+        active = active[remaining[active] > 0]
+        rays.append(active)
+        cells.append(cell[active])
+    return np.concatenate(rays), np.concatenate(cells)
+
+
+@dataclass
+class OccupancyMap:
+    """A sparse probabilistic occupancy map of cubes of side ``size`` (module docstring)."""
+
+    size: float
+    keys: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    log_odds: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    _obstacles: cKDTree | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if not self.size > 0:
+            raise PointfieldError(f"the voxel size must be positive, got {self.size}")
+
+    def insert_scan(self, points: np.ndarray, origin: np.ndarray, max_range: float | None = None) -> None:
+        """Update the map with the rays from ``origin`` ``(3,)`` to each of ``points`` ``(N, 3)`` (world units)."""
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        points = points[np.isfinite(points).all(axis=1)]
+        origin = np.asarray(origin, np.float64).reshape(3)
+        ends = points
+        hit = np.ones(len(points), bool)
+        if max_range is not None:
+            offset = points - origin
+            length = np.linalg.norm(offset, axis=1)
+            hit = length <= max_range
+            ends = np.where(hit[:, None], points, origin + offset * (max_range / np.maximum(length, 1e-300))[:, None])
+        start = np.broadcast_to(origin / self.size, ends.shape)
+        _, passed = traverse(start, ends / self.size)
+        occupied = np.unique(cell_keys(np.floor(ends[hit] / self.size).astype(np.int64)))
+        ends_free = cell_keys(np.floor(ends[~hit] / self.size).astype(np.int64))  # cut at max_range: free to there
+        free = np.setdiff1d(np.unique(np.concatenate([cell_keys(passed), ends_free])), occupied, assume_unique=True)
+        self._update(free, MISS)
+        self._update(occupied, HIT)
+        self._obstacles = None
+
+    def _update(self, keys: np.ndarray, change: float) -> None:
+        merged = np.union1d(self.keys, keys)
+        values = np.zeros(len(merged), np.float32)
+        values[np.searchsorted(merged, self.keys)] = self.log_odds
+        at = np.searchsorted(merged, keys)
+        values[at] = np.clip(values[at] + change, *CLAMP)
+        self.keys, self.log_odds = merged, values
+
+    def _log_odds_at(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        keys = cell_keys(np.floor(np.asarray(points, np.float64).reshape(-1, 3) / self.size).astype(np.int64))
+        at = np.minimum(np.searchsorted(self.keys, keys), max(len(self.keys) - 1, 0))
+        known = (self.keys[at] == keys) if len(self.keys) else np.zeros(len(keys), bool)
+        return known, np.where(known, self.log_odds[at] if len(self.keys) else 0.0, 0.0)
+
+    def state(self, points: np.ndarray) -> np.ndarray:
+        """Per point ``(N,)`` int8: 1 occupied, 0 free, -1 unknown."""
+        known, values = self._log_odds_at(points)
+        return np.where(known, (values > 0).astype(np.int8), np.int8(-1)).astype(np.int8)
+
+    def is_free(self, points: np.ndarray) -> np.ndarray:
+        """``(N,)`` bool: the point's cell was seen and is free (unknown is not free: a planner must not go there)."""
+        return self.state(points) == 0
+
+    def occupied_cells(self) -> np.ndarray:
+        return key_cells(self.keys[self.log_odds > 0])
+
+    def distance_to_obstacle(self, points: np.ndarray) -> np.ndarray:
+        """``(N,)`` distance from each point to the nearest occupied cell's centre (inf with none)."""
+        if self._obstacles is None:
+            centres = (self.occupied_cells() + 0.5) * self.size
+            self._obstacles = cKDTree(centres) if len(centres) else None
+        if self._obstacles is None:
+            return np.full(len(np.asarray(points).reshape(-1, 3)), np.inf)
+        distance, _ = self._obstacles.query(np.asarray(points, np.float64).reshape(-1, 3), workers=-1)
+        return distance
+
+    def to_grid(self, which: str = "occupied") -> VoxelGrid:
+        """The ``occupied`` (or ``free``, or ``known``) cells as a :class:`VoxelGrid` with their ``probability``."""
+        chosen = {"occupied": self.log_odds > 0, "free": self.log_odds <= 0,
+                  "known": np.ones(len(self.keys), bool)}[which]
+        cells = key_cells(self.keys[chosen])
+        if not len(cells):
+            return VoxelGrid(np.zeros((0, 3), np.int64), np.zeros(3), self.size)
+        low = cells.min(axis=0)
+        probability = (1 / (1 + np.exp(-self.log_odds[chosen]))).astype(np.float32)
+        return VoxelGrid(cells - low, low * self.size, self.size, {"probability": probability},
+                         metadata={"occupancy": which})
+
+
+OCTOMAP_DEPTH = 16
+OCTOMAP_OFFSET = 1 << (OCTOMAP_DEPTH - 1)
+
+
+def _morton(keys: np.ndarray) -> np.ndarray:
+    """48-bit Morton codes of ``(N, 3)`` 16-bit OctoMap keys: at each level, bit x | y << 1 | z << 2 (OctoMap's child index)."""
+    code = np.zeros(len(keys), np.int64)
+    for bit in range(OCTOMAP_DEPTH):
+        for axis in range(3):
+            code |= ((keys[:, axis] >> bit) & 1).astype(np.int64) << (3 * bit + axis)
+    return code
+
+
+def write_octomap(path: str | os.PathLike[str], occupancy: OccupancyMap) -> None:
+    """Write the map as an OctoMap binary tree (``.bt``), as ``OcTree::writeBinary`` does, atomically.
+
+    OctoMap's binary format keeps each cell as occupied or free (no probability): after a header,
+    the tree depth first, two bytes per inner node giving each of its 8 children 2 bits -- 00
+    unknown, 01 occupied leaf, 10 free leaf, 11 inner node -- children 0..3 in the first byte,
+    4..7 in the second, child ``i`` at bits ``2i`` (low) and ``2i + 1``. Cells must lie within
+    2^15 of the origin (OctoMap's 16-level key space). The tree is written unpruned.
+    """
+    cells = key_cells(occupancy.keys) + OCTOMAP_OFFSET
+    if len(cells) and (cells.min() < 0 or cells.max() >= 1 << OCTOMAP_DEPTH):
+        raise PointfieldError(f"{path}: a cell lies more than {OCTOMAP_OFFSET:,} voxels from the origin, beyond "
+                              "OctoMap's 16-level keys: use a larger voxel")
+    code = _morton(cells)
+    order = np.argsort(code)
+    code, occupied = code[order], (occupancy.log_odds > 0)[order]
+    out = bytearray()
+    nodes = 1
+
+    def node(level: int, lo: int, hi: int) -> None:
+        """Write the node whose leaves are ``code[lo:hi]``, ``level`` levels below the root."""
+        nonlocal nodes
+        shift = 3 * (OCTOMAP_DEPTH - 1 - level)
+        child = (code[lo:hi] >> shift) & 7
+        bounds = np.searchsorted(child, np.arange(9)) + lo
+        bits = 0
+        inner = []
+        for i in range(8):
+            a, b = int(bounds[i]), int(bounds[i + 1])
+            if a == b:
+                continue
+            nodes += 1
+            if level == OCTOMAP_DEPTH - 1:
+                bits |= (0b10 if occupied[a] else 0b01) << (2 * i)  # bit 2i + 1 set: occupied; bit 2i: free
+            else:
+                bits |= 0b11 << (2 * i)
+                inner.append((a, b))
+        out.extend((bits & 0xFF, bits >> 8))
+        for a, b in inner:
+            node(level + 1, a, b)
+
+    if len(code):
+        node(0, 0, len(code))
+    header = (f"# Octomap OcTree binary file\n# written by pointfield\nid OcTree\nsize {nodes if len(code) else 0}\n"
+              f"res {occupancy.size!r}\ndata\n").encode("ascii")
+    with atomic_path(Path(path)) as tmp:
+        tmp.write_bytes(header + bytes(out))
