@@ -173,29 +173,36 @@ class LabelledClouds(SceneDataset):
     def read(self, index: int) -> PointCloud:
         path = self.files[index]
         cloud, field = self._read_labelled(path)
-        fields = {LABEL_FIELD: labels_of_codes(cloud.fields[field], self.codes)}
-        for name in ("colors", "normals", "intensity"):
-            if name in cloud.fields:
-                fields[name] = cloud.fields[name]
-        if "colors" in fields:
-            fields["colors"] = _as_uint8_colours(fields["colors"][:, :3])
-        if "intensity" in fields:
-            fields["intensity"] = _as_unit_intensity(fields["intensity"])
-        finite = np.isfinite(cloud.points).all(axis=1)
-        if not finite.any():
-            raise FormatError(path, "has no points with finite coordinates")
-        points = cloud.points
-        if points.dtype == np.float64:
-            # Survey coordinates (UTM) lose centimetres in float32: keep them relative to the file's
-            # corner, which the crops re-centre anyway.
-            points = points - np.floor(points[finite].min(axis=0))
-        kept = finite.copy()
+        scan = as_scan(cloud, path, self.names[index])
+        scan.fields[LABEL_FIELD] = labels_of_codes(cloud.fields[field], self.codes)
+        kept = np.isfinite(scan.points).all(axis=1)
         if not self.whole_files:
-            x = points[:, 0]
-            cut = np.quantile(x[finite], 1 - HOLDOUT_FRACTION)
+            x = scan.points[:, 0]
+            cut = np.quantile(x[kept], 1 - HOLDOUT_FRACTION)
             kept &= (x >= cut) if self.split == "test" else (x < cut)
-        scan = PointCloud(points.astype(np.float32), fields, None, {"scan": self.names[index]})
         return scan.select(kept)
+
+
+def as_scan(cloud: PointCloud, path: Path, name: str) -> PointCloud:
+    """A cloud as read, in the scene convention (module doc of :mod:`~.scene_base`), without labels.
+
+    Colours become uint8, intensity is divided by its 99th percentile, and float64 coordinates
+    (survey coordinates, UTM) are taken relative to the floor of their smallest finite corner,
+    since float32 would lose their centimetres (the crops re-centre them anyway). Points keep
+    their order and number, non-finite ones included.
+    """
+    fields = {name: cloud.fields[name] for name in ("colors", "normals", "intensity") if name in cloud.fields}
+    if "colors" in fields:
+        fields["colors"] = _as_uint8_colours(fields["colors"][:, :3])
+    if "intensity" in fields:
+        fields["intensity"] = _as_unit_intensity(fields["intensity"])
+    finite = np.isfinite(cloud.points).all(axis=1)
+    if not finite.any():
+        raise FormatError(path, "has no points with finite coordinates")
+    points = cloud.points
+    if points.dtype == np.float64:
+        points = points - np.floor(points[finite].min(axis=0))
+    return PointCloud(points.astype(np.float32), fields, None, {"scan": name})
 
 
 def labels_of_codes(values: np.ndarray, codes: Sequence[int]) -> np.ndarray:

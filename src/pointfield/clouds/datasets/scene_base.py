@@ -40,6 +40,12 @@ class SceneDataset:
     names: list[str]
     root: Path | None = None
     split: str | None = None
+    codes: list[int] | None = None
+    """The value of each class in the files, where it is not its index (labelled files)."""
+
+    def class_codes(self) -> list[int]:
+        """Class i's value in the files: ``codes[i]``, or i."""
+        return list(self.codes) if self.codes is not None else list(range(len(self.classes)))
 
     def __len__(self) -> int:
         return len(self.names)
