@@ -81,3 +81,13 @@ def test_make_scenes_writes_train_and_test_clouds_with_one_class_table(tmp_path)
 def test_an_unknown_kind_is_refused():
     with pytest.raises(PointfieldError, match="unknown scene kind 'forest'"):
         synthetic_scene("forest")
+
+
+def test_the_make_scenes_command_writes_a_folder_segment_train_takes(tmp_path, capsys):
+    from pointfield.cli import main
+    from pointfield.cli.segment_scenes import is_scene_data
+
+    assert main(["segment", "make-scenes", str(tmp_path / "rooms"), "--count", "2", "--density", "0.02"]) == 0
+    assert "2 room scans" in capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / "rooms").rglob("*.ply")) == ["room_0000.ply", "room_0001.ply"]
+    assert is_scene_data([tmp_path / "rooms"])
