@@ -51,7 +51,7 @@ def test_a_pointnet2_learns_rooms_loss_falls_and_miou_beats_the_majority_guess(r
     config = json.loads((run / "config.json").read_text())
     assert config["task"] == "segment-scenes" and config["model"] == "pointnet2"
     assert config["features"] == ["colour", "intensity", "height"]  # what the scans offer, and height
-    assert (run / "confusion_matrix.png").is_file()
+    assert (run / "confusion_matrix.png").is_file() and (run / "prediction.png").is_file()
 
 
 def test_eval_reports_overall_accuracy_miou_and_each_class(run, capsys):

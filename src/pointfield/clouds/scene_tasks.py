@@ -18,7 +18,8 @@ The recipe (Pointcept's and PointNet++'s choices, sized for a CPU):
   with weight decay 1e-4, cosine-decayed to 1 % over the epochs;
 - evaluation after each epoch on every test scan, each point's class the vote of the windows
   holding it: overall accuracy, mean IoU and the IoU of each class, on the grid-subsampled
-  points (as Pointcept scores during training).
+  points (as Pointcept scores during training); at the end ``confusion_matrix.png`` and
+  ``prediction.png``, the first test scan coloured by truth beside prediction.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import matplotlib
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -70,12 +72,14 @@ from pointfield.training.run import Run, RunDirectory
 from pointfield.training.task import Step, Task
 from pointfield.version import __version__
 from pointfield.viz.plots import plot_confusion_matrix, plot_training_curves
+from pointfield.viz.render import image_grid, render_cloud, save_image
 
 TASK = "segment-scenes"
 DEFAULTS = {"model": "pointnet2", "grid": 0.05, "radius": 2.0, "shape": "sphere", "points": 4096, "crops": 256,
             "epochs": 30, "batch_size": 8}
 CURVES_PNG = "training_curves.png"
 CONFUSION_PNG = "confusion_matrix.png"
+PREDICTION_PNG = "prediction.png"
 LAS_SUFFIXES = (".las", ".laz")
 
 
@@ -103,16 +107,29 @@ def open_split(config: dict[str, Any], split: str, data: Sequence[str] | None = 
 
 def confusion_over(
     model: torch.nn.Module, scenes: Sequence[PointCloud], config: dict[str, Any], device: torch.device
-) -> np.ndarray:
-    """The confusion matrix of the voted labels of every labelled point of ``scenes``."""
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The confusion matrix of the voted labels of every labelled point of ``scenes``, and those labels."""
     classes = len(config["classes"])
     confusion = np.zeros((classes, classes), np.int64)
+    predictions = []
     for scene in scenes:
-        probabilities = vote_on(model, scene, config, device)
-        labels = scene.fields[LABEL_FIELD]
-        confusion += confusion_matrix(torch.from_numpy(labels), torch.from_numpy(probabilities.argmax(axis=1)),
+        predicted = vote_on(model, scene, config, device).argmax(axis=1)
+        confusion += confusion_matrix(torch.from_numpy(scene.fields[LABEL_FIELD]), torch.from_numpy(predicted),
                                       classes)
-    return confusion
+        predictions.append(predicted)
+    return confusion, predictions
+
+
+def draw_prediction(scene: PointCloud, predicted: np.ndarray, classes: Sequence[str], path: Path) -> Path:
+    """Save the scan drawn twice, coloured by its true classes and by the predicted ones, side by side."""
+    palette = (np.asarray(matplotlib.colormaps["tab20"].colors) * 255).astype(np.uint8)
+    views = []
+    for labels in (scene.fields[LABEL_FIELD], predicted):
+        colours = np.where((labels >= 0)[:, None], palette[np.clip(labels, 0, None) % len(palette)], 160)
+        views.append(render_cloud(PointCloud(scene.points, {"colors": colours.astype(np.uint8)}), 640, 480,
+                                  up="z", color_by="colors"))
+    legend = ", ".join(f"{i} {name}" for i, name in enumerate(classes))
+    return save_image(path, image_grid(views, ["truth", f"predicted (tab20 colours: {legend})"], columns=2))
 
 
 def vote_on(model: torch.nn.Module, scene: PointCloud, config: dict[str, Any], device: torch.device) -> np.ndarray:
@@ -208,6 +225,7 @@ class SceneSegmentTask(Task):
         )
         self.collate = CloudCollate(config["features"], point_labels=True)
         self.confusion: np.ndarray | None = None
+        self.predictions: list[np.ndarray] = []
         if progress:
             print(f"segment scenes {config['model']}: {self.parameters:,} parameters on {device}; "
                   f"{config['data_description']}; features {', '.join(config['features'])}")
@@ -233,17 +251,18 @@ class SceneSegmentTask(Task):
         return Step(loss, {"accuracy": float(correct)})
 
     def evaluate(self, epoch: int) -> dict[str, float]:
-        self.confusion = confusion_over(self.model, self.test_scenes, self.config, self.device)
+        self.confusion, self.predictions = confusion_over(self.model, self.test_scenes, self.config, self.device)
         return {f"test_{k}": v for k, v in scores_of(self.confusion, "segment").items()}
 
     def draw(self, run: RunDirectory, history: list[dict[str, Any]]) -> None:
         plot_training_curves(history, run.path / CURVES_PNG, title=_title(self.config))
 
     def finish(self, run: RunDirectory, state: TrainingState) -> dict[str, Any]:
+        if self.confusion is None:  # a resumed run that had already finished its epochs
+            self.confusion, self.predictions = confusion_over(self.model, self.test_scenes, self.config, self.device)
         confusion = self.confusion
-        if confusion is None:  # a resumed run that had already finished its epochs
-            confusion = confusion_over(self.model, self.test_scenes, self.config, self.device)
         plot_confusion_matrix(confusion, self.config["classes"], run.path / CONFUSION_PNG, title=_title(self.config))
+        draw_prediction(self.test_scenes[0], self.predictions[0], self.config["classes"], run.path / PREDICTION_PNG)
         if state.history:
             self.draw(run, state.history)
         return {
@@ -343,7 +362,7 @@ class SceneRun(Run):
         paths = [os.fspath(p) for p in data] if data else None
         dataset = open_split(self.config, "test", paths)
         scenes = read_prepared(dataset, self.config, progress)
-        confusion = confusion_over(self.module, scenes, self.config, self.device)
+        confusion, _ = confusion_over(self.module, scenes, self.config, self.device)
         return {
             **scores_of(confusion, "segment"),
             "per_class": per_class_scores(confusion, "segment", self.config["classes"]),
