@@ -165,3 +165,10 @@ def test_a_scene_run_killed_mid_training_resumes_and_finishes(rooms, tmp_path):
     final = train_scenes([rooms], out=out, resume=True, progress=False, device="cpu")
     epochs = [json.loads(line)["epoch"] for line in (out / "metrics.jsonl").read_text().splitlines()]
     assert epochs == [1, 2] and final["epochs"] == 2
+
+
+def test_a_block_crop_is_a_column_of_square_section():
+    points = np.random.default_rng(0).uniform(-3, 3, (2000, 3))
+    inside = CropFinder(points, 1.0, "block").within(np.zeros(3))
+    expected = np.flatnonzero((np.abs(points[:, :2]) <= 1.0).all(axis=1))
+    assert np.array_equal(inside, expected) and np.ptp(points[inside, 2]) > 5  # every height
