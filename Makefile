@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy clean
+.PHONY: demo test lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy bench-scenes clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -52,7 +52,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy
+bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy bench-scenes
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -72,6 +72,9 @@ bench-fps: $(BIN)/.installed
 
 bench-pointnet: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_pointnet.py
+
+bench-scenes: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_scenes.py
 
 bench-nerf: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_nerf.py

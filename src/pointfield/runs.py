@@ -1,12 +1,13 @@
 """``load_run``: any run folder pointfield wrote, opened as the :class:`~pointfield.training.Run` of its kind.
 
-======================  ========================================  ======================================
-``config.json`` task    opened as                                 what it does besides ``metrics``
-======================  ========================================  ======================================
-classify, segment       :class:`~pointfield.clouds.run.CloudRun`  ``evaluate(data)``, ``predict(files)``
-nerf (tiny, nerf, ngp)  :class:`~pointfield.fields.run.FieldRun`  ``render(cameras)``, ``evaluate()``
-splat                   :class:`~pointfield.splats.run.SplatRun`  ``render(cameras)``, ``evaluate()``
-======================  ========================================  ======================================
+======================  ================================================  ======================================
+``config.json`` task    opened as                                         what it does besides ``metrics``
+======================  ================================================  ======================================
+classify, segment       :class:`~pointfield.clouds.run.CloudRun`          ``evaluate(data)``, ``predict(files)``
+segment-scenes          :class:`~pointfield.clouds.scene_tasks.SceneRun`  ``evaluate(data)``, ``predict(files)``
+nerf (tiny, nerf, ngp)  :class:`~pointfield.fields.run.FieldRun`          ``render(cameras)``, ``evaluate()``
+splat                   :class:`~pointfield.splats.run.SplatRun`          ``render(cameras)``, ``evaluate()``
+======================  ================================================  ======================================
 
 Example::
 
@@ -20,12 +21,13 @@ from __future__ import annotations
 import os
 
 from pointfield.clouds.run import CloudRun
+from pointfield.clouds.scene_tasks import SceneRun
 from pointfield.fields.run import FieldRun
 from pointfield.splats.run import SplatRun
 from pointfield.training.lifecycle import open_run
 from pointfield.training.run import Run
 
-RUN_CLASSES: tuple[type[Run], ...] = (CloudRun, FieldRun, SplatRun)
+RUN_CLASSES: tuple[type[Run], ...] = (CloudRun, SceneRun, FieldRun, SplatRun)
 
 
 def load_run(path: str | os.PathLike[str], device: str | None = None) -> Run:

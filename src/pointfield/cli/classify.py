@@ -46,16 +46,19 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def add_training_arguments(parser: argparse.ArgumentParser, task: str) -> None:
     """The ``train`` arguments shared by ``classify`` and ``segment``."""
+    scenes = task == "segment"
     parser.add_argument(
-        "data", nargs="?", type=Path, metavar="DATA",
-        help="training data folder (default: the built-in synthetic shapes)",
+        "data", nargs="*" if scenes else "?", type=Path, metavar="DATA",
+        help="training data: a folder, or for segment also a scene dataset or labelled files "
+        "(default: the built-in synthetic shapes)",
     )
-    parser.add_argument("--model", choices=MODELS, default="pointnet",
-                        help="pointnet (default), pointnet2 (PointNet++ SSG) or pointnet2-msg")
+    parser.add_argument("--model", choices=MODELS, default=None if scenes else "pointnet",
+                        help="pointnet (default; scenes: pointnet2), pointnet2 (PointNet++ SSG) or pointnet2-msg")
     parser.add_argument("--epochs", type=int, help="epochs (default: pointnet 10, pointnet2 5)")
     parser.add_argument("--batch-size", type=int,
                         help="clouds per batch, per process (default: pointnet 32, pointnet2 16)")
-    parser.add_argument("--points", type=int, default=1024, help="points per cloud (default 1024)")
+    parser.add_argument("--points", type=int, default=None if scenes else 1024,
+                        help="points per cloud (default 1024; scene crops: 4096)")
     parser.add_argument("--out", type=Path, default=Path(f"runs/{task}"),
                         help=f"run folder to write (default runs/{task})")
     parser.add_argument("--device", help="auto (default), cpu, cuda, cuda:N or mps")
@@ -80,8 +83,9 @@ def add_training_arguments(parser: argparse.ArgumentParser, task: str) -> None:
     parser.add_argument("--no-progress", dest="progress", action="store_false",
                         help="no progress bar")
     if task == "segment":
-        parser.add_argument("--label-field", default="label",
-                            help="per-point integer field holding the labels (default: label)")
+        parser.add_argument("--label-field",
+                            help="per-point integer field holding the labels (default: label; labelled "
+                            "scans: classification or label)")
 
 
 def add_eval_parser(verbs: argparse._SubParsersAction, task: str) -> None:

@@ -11,7 +11,8 @@ import argparse
 import json
 from pathlib import Path
 
-from pointfield.cli.classify import add_eval_parser, add_training_arguments, run_train
+from pointfield.cli import segment_scenes
+from pointfield.cli.classify import add_eval_parser, add_training_arguments
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -21,29 +22,38 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="train, evaluate and apply per-point segmenters (PointNet, PointNet++)",
         description="Label every point of a cloud (parts, or semantic classes). DATA is a "
         "folder of clouds whose per-point integer field (--label-field, default 'label') "
-        "holds the labels, with optional train/ and test/ subfolders. Without DATA, the "
-        "built-in synthetic shapes and their 17 parts.",
+        "holds the labels, with optional train/ and test/ subfolders, or ShapeNetPart. Without DATA, the "
+        "built-in synthetic shapes and their 17 parts. Whole scans train on crops: DATA an S3DIS, "
+        "ScanNet v2 or SemanticKITTI folder, labelled files in any format, or a folder from make-scenes "
+        "(see docs/scenes.md).",
     )
     verbs = group.add_subparsers(dest="verb", metavar="SUBCOMMAND", required=True)
     train = verbs.add_parser("train", help="train a segmenter into a run folder")
     add_training_arguments(train, "segment")
-    train.set_defaults(run=lambda args: run_train(args, "segment"))
+    segment_scenes.add_scene_arguments(train)
+    train.set_defaults(run=segment_scenes.run_train)
     add_eval_parser(verbs, "segment")
+    verbs.choices["eval"].set_defaults(run=segment_scenes.run_eval)
     predict = verbs.add_parser(
         "predict", help="label every point of files with a trained run",
         description="Write each FILE, labelled, to OUT/<name>.ply with an int32 'label' field "
-        "(a mesh keeps its faces), and print how many points each part got.",
+        "(a mesh keeps its faces), and print how many points each part got. With a scene run, "
+        "overlapping crops vote; OUT is a file (one FILE) or a folder of outputs named as their inputs, "
+        "with the labels (LAS: classification) and a 'confidence' field, and a .classes.json beside each.",
     )
     predict.add_argument("run_dir", type=Path, metavar="RUN", help="a run folder from segment train")
     predict.add_argument("files", type=Path, nargs="+", metavar="FILE", help="clouds or meshes")
-    predict.add_argument("--out", type=Path, help="folder for the labelled clouds "
+    predict.add_argument("--out", type=Path, help="folder for the labelled clouds, or a file for one scan "
                          "(default: RUN/predictions)")
     predict.add_argument("--device", help="auto (default), cpu, cuda, cuda:N or mps")
     predict.add_argument("--json", action="store_true", help="print JSON")
     predict.set_defaults(run=run_predict)
+    segment_scenes.add_make_scenes_parser(verbs)
 
 
 def run_predict(args: argparse.Namespace) -> int:
+    if segment_scenes.scene_run_task(args.run_dir):
+        return segment_scenes.run_predict(args)
     from pointfield.clouds import run
 
     answers = run.predict("segment", args.run_dir, args.files, device=args.device, out=args.out)

@@ -179,22 +179,28 @@ def _bucket_tree_height(count: int) -> int:
     return 3 if count < 5_000 else 5 if count < 50_000 else 7
 
 
-def voxel_downsample(cloud: PointCloud | np.ndarray, voxel_size: float) -> PointCloud | np.ndarray:
+def voxel_downsample(
+    cloud: PointCloud | np.ndarray, voxel_size: float, return_inverse: bool = False
+) -> PointCloud | np.ndarray | tuple[PointCloud | np.ndarray, np.ndarray]:
     """One point per occupied cube of side ``voxel_size``: the mean of the points inside it.
 
     A point p falls in voxel ``floor((p - min) / voxel_size)``. Floating-point fields are
     averaged over the voxel like the points (normals are renormalised to unit length); other
     fields (labels, integer colours) take the value of the voxel's first point. Given an array,
     returns the ``(M, 3)`` voxel centroids in its dtype; given a cloud, a cloud. Voxels come in
-    lexicographic order of their grid coordinates. Non-finite points are dropped.
+    lexicographic order of their grid coordinates. Non-finite points are dropped. With
+    ``return_inverse``, also the ``(N,)`` int64 voxel of every input point (-1 for a dropped
+    one), so that a result computed per voxel can be handed back to every point.
     """
     if voxel_size <= 0:
         raise ValueError(f"voxel_size must be positive, got {voxel_size}")
     source = cloud if isinstance(cloud, PointCloud) else PointCloud(np.asarray(cloud))
-    source = source.select(finite_rows(source.points))
+    finite = finite_rows(source.points)
+    source = source.select(finite)
     points = source.points.astype(np.float64)
     if len(points) == 0:
-        return source if isinstance(cloud, PointCloud) else source.points
+        result = source if isinstance(cloud, PointCloud) else source.points
+        return (result, np.full(len(finite), -1, np.int64)) if return_inverse else result
     cells = np.floor((points - points.min(axis=0)) / voxel_size).astype(np.int64)
     _, first, inverse, counts = np.unique(
         cells, axis=0, return_index=True, return_inverse=True, return_counts=True
@@ -208,8 +214,11 @@ def voxel_downsample(cloud: PointCloud | np.ndarray, voxel_size: float) -> Point
         return (sums / counts[:, None]).reshape((len(counts), *values.shape[1:]))
 
     centroids = voxel_mean(points).astype(source.points.dtype)
+    if return_inverse:
+        of_input = np.full(len(finite), -1, np.int64)
+        of_input[finite] = inverse
     if not isinstance(cloud, PointCloud):
-        return centroids
+        return (centroids, of_input) if return_inverse else centroids
     fields = {}
     for name, values in source.fields.items():
         if np.issubdtype(values.dtype, np.floating):
@@ -220,7 +229,8 @@ def voxel_downsample(cloud: PointCloud | np.ndarray, voxel_size: float) -> Point
             fields[name] = averaged.astype(values.dtype)
         else:
             fields[name] = values[first]
-    return PointCloud(centroids, fields, None, dict(source.metadata))
+    result = PointCloud(centroids, fields, None, dict(source.metadata))
+    return (result, of_input) if return_inverse else result
 
 
 def statistical_inliers(points: np.ndarray, neighbours: int = 16, std_ratio: float = 2.0) -> np.ndarray:

@@ -36,6 +36,7 @@ from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.datasets import PART_LABEL_FIELD, CloudCollate
 from pointfield.clouds.formats import read, write
 from pointfield.clouds.mesh import Mesh
+from pointfield.clouds.scene_tasks import train_scenes
 from pointfield.clouds.tasks import (
     build_cloud_model,
     check_not_empty,
@@ -248,8 +249,10 @@ segment = SimpleNamespace(
     train=functools.partial(train, "segment", out="runs/segment"),
     evaluate=functools.partial(evaluate, "segment"),
     predict=functools.partial(predict, "segment"),
+    train_scenes=train_scenes,
 )
-"""``pointfield segment train|eval|predict`` as Python: ``pointfield.segment.train(...)``."""
+"""``pointfield segment train|eval|predict`` as Python: ``pointfield.segment.train(...)``; on whole scans
+``pointfield.segment.train_scenes([DATA...], out=...)``, whose run ``pointfield.load_run`` opens."""
 
 
 def _with_field(data: PointCloud, name: str, values: np.ndarray) -> PointCloud:

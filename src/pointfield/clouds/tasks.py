@@ -40,7 +40,9 @@ from pointfield.clouds.datasets import (
     CloudDataset,
     CloudFolder,
     ModelNet,
+    ShapeNetPart,
     default_cache_dir,
+    is_shapenetpart,
     modelnet_source,
 )
 from pointfield.clouds.models import MODEL_NAMES, MODEL_OPTIONS, build_model, count_parameters
@@ -117,7 +119,8 @@ def open_data(
 
     ``data`` None: the synthetic shapes (``shapes_per_class`` training shapes per class, 30 %
     as many test shapes, each of ``points`` to ``2 * points`` points). A folder of ModelNet
-    ``.h5`` or ``_normal_resampled`` files: :class:`ModelNet`. Any other folder: :class:`CloudFolder`, meshes sampled once and cached
+    ``.h5`` or ``_normal_resampled`` files: :class:`ModelNet`. ShapeNetPart's folder, for
+    segmentation: :class:`ShapeNetPart`. Any other folder: :class:`CloudFolder`, meshes sampled once and cached
     under :func:`default_cache_dir`; for segmentation its clouds need the per-point integer
     field ``label_field``. ``classes`` fixes the class order (that of a trained model).
     """
@@ -134,6 +137,11 @@ def open_data(
             raise PointfieldError(
                 f"{root}: its classes {dataset.classes} are not those the model was trained on"
             )
+        return dataset
+    if task == "segment" and is_shapenetpart(root):
+        dataset = ShapeNetPart(root, split, seed=seed, on_error=on_error, progress=progress)
+        if classes is not None and list(dataset.classes) != list(classes):
+            raise PointfieldError(f"{root}: its categories {dataset.classes} are not those the model was trained on")
         return dataset
     dataset = CloudFolder(
         root, split, seed=seed, on_error=on_error, mesh_points=mesh_points,

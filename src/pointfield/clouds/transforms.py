@@ -277,6 +277,61 @@ class Shuffle(RandomTransform):
         return cloud.select(self.generator(rng).permutation(len(cloud)))
 
 
+class ScaleBy(Transform):
+    """Multiply coordinates by a fixed ``factor`` (a scene crop of radius r into the unit ball: 1 / r)."""
+
+    def __init__(self, factor: float):
+        if not factor > 0:
+            raise ValueError(f"factor must be positive, got {factor}")
+        self.factor = factor
+
+    def __call__(self, cloud: PointCloud, rng: np.random.Generator | None = None) -> PointCloud:
+        return _replace_points(cloud, (cloud.points * self.factor).astype(cloud.points.dtype))
+
+    def __repr__(self) -> str:
+        return f"ScaleBy(factor={self.factor:g})"
+
+
+class ColourJitter(RandomTransform):
+    """Add Gaussian noise of standard deviation ``sigma`` to each channel of the float colour
+    ``field`` (values in [0, 1]), clipped back to [0, 1]: Pointcept's ``ChromaticJitter``."""
+
+    def __init__(self, sigma: float = 0.05, field: str = "colour", seed: int | None = None):
+        super().__init__(seed)
+        self.sigma, self.field = sigma, field
+
+    def __call__(self, cloud: PointCloud, rng: np.random.Generator | None = None) -> PointCloud:
+        if self.field not in cloud.fields:
+            return cloud
+        colour = cloud.fields[self.field]
+        noisy = np.clip(colour + self.generator(rng).normal(0.0, self.sigma, colour.shape), 0.0, 1.0)
+        return PointCloud(cloud.points, {**cloud.fields, self.field: noisy.astype(colour.dtype)}, cloud.shape,
+                          dict(cloud.metadata))
+
+    def __repr__(self) -> str:
+        return f"ColourJitter(sigma={self.sigma:g}, field={self.field!r})"
+
+
+class ColourDrop(RandomTransform):
+    """With probability ``probability``, set the whole cloud's colour ``field`` to 0, so that a model
+    learns shape as well as colour: Pointcept's ``RandomColorDrop``."""
+
+    def __init__(self, probability: float = 0.2, field: str = "colour", seed: int | None = None):
+        super().__init__(seed)
+        if not 0 <= probability <= 1:
+            raise ValueError(f"probability must be in [0, 1], got {probability}")
+        self.probability, self.field = probability, field
+
+    def __call__(self, cloud: PointCloud, rng: np.random.Generator | None = None) -> PointCloud:
+        if self.field not in cloud.fields or self.generator(rng).random() >= self.probability:
+            return cloud
+        dropped = np.zeros_like(cloud.fields[self.field])
+        return PointCloud(cloud.points, {**cloud.fields, self.field: dropped}, cloud.shape, dict(cloud.metadata))
+
+    def __repr__(self) -> str:
+        return f"ColourDrop(probability={self.probability:g}, field={self.field!r})"
+
+
 def _replace_points(cloud: PointCloud, points: np.ndarray) -> PointCloud:
     return PointCloud(points, dict(cloud.fields), cloud.shape, dict(cloud.metadata))
 
