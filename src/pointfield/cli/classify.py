@@ -116,17 +116,19 @@ def run_train(args: argparse.Namespace, task: str) -> int:
         options["label_field"] = args.label_field
     metrics = tasks.train(task, args.data, **options)
     if os.environ.get("RANK", "0") == "0":
-        print(f"{task} run {args.out}: {_scores_line(metrics)} ({metrics['epochs']} epochs, "
+        epochs = metrics["epochs"]
+        print(f"{task} run {args.out}: {_scores_line(metrics)} ({epochs} epoch{'' if epochs == 1 else 's'}, "
               f"{metrics['seconds']:.0f} s); see {args.out / 'metrics.json'}")
     return 0
 
 
 def run_eval(args: argparse.Namespace, task: str) -> int:
     from pointfield.clouds import run
+    from pointfield.training.run import to_json
 
     metrics = run.evaluate(task, args.run_dir, args.data, device=args.device, on_error=args.on_error)
     if args.json:
-        print(json.dumps(metrics, indent=2))
+        print(to_json(metrics, indent=2))
         return 0
     print(f"{metrics['samples']} test clouds: {_scores_line(metrics)}")
     label = "IoU" if task == "segment" else "accuracy"

@@ -32,6 +32,8 @@ from pointfield.scenes.cameras import Cameras
 from pointfield.scenes.formats import read_scene
 from pointfield.scenes.scene import Scene, SceneError
 from pointfield.scenes.synthetic import synthetic_scene
+from pointfield.training import console
+from pointfield.training.budget import WRITING_SECONDS, TimeBudget
 
 OUTPUTS = ("rgb", "depth", "median_depth", "opacity")
 """What a scene model renders: colour ``(H, W, 3)`` in [0, 1]; expected depth ``(H, W)``, the
@@ -169,20 +171,32 @@ def as_numpy(view: View) -> dict[str, np.ndarray]:
 
 @torch.no_grad()
 def heldout_scores(
-    render: Renderer, scene: Scene, frames: Sequence[int], keep_renders: bool = False
+    render: Renderer, scene: Scene, frames: Sequence[int], keep_renders: bool = False,
+    until: float = math.inf, progress: bool = False,
 ) -> tuple[dict[str, float], list[HeldoutRender]]:
     """PSNR (mean of per-view PSNR), mean SSIM and opacity error of ``render`` over held-out ``frames``.
 
-    Returns ``({"psnr", "ssim", "opacity_error", "views", "render_seconds_per_view"}, renders)``,
-    with ``renders`` ``[(frame, view arrays, truth)]`` when ``keep_renders`` (else empty). SSIM
-    needs views of at least 11 x 11 pixels; smaller ones give NaN. ``opacity_error`` is the mean
-    over views of the mean absolute difference between the rendered opacity and the image's
-    alpha (NaN for images without alpha): how far the geometry is from the object's silhouette,
-    which colour alone does not pin down on a background of the object's colour.
+    Returns ``({"psnr", "ssim", "opacity_error", "views", "heldout_views",
+    "render_seconds_per_view"}, renders)``, with ``renders`` ``[(frame, view arrays, truth)]``
+    when ``keep_renders`` (else empty). SSIM needs views of at least 11 x 11 pixels; smaller ones
+    give NaN. ``opacity_error`` is the mean over views of the mean absolute difference between
+    the rendered opacity and the image's alpha (NaN for images without alpha): how far the
+    geometry is from the object's silhouette, which colour alone does not pin down on a
+    background of the object's colour.
+
+    ``until`` (a :func:`time.perf_counter` reading): the first view is always scored, each
+    further one only if the mean time of those before says it is done by then; ``views`` is how
+    many were scored, ``heldout_views`` how many were asked for. ``progress``: a bar over the
+    views on a terminal once the evaluation has taken a couple of seconds, and off a terminal a
+    line at least every minute (:mod:`pointfield.training.console`).
     """
     images, truths, renders, opacity_errors = [], [], [], []
-    started = time.perf_counter()
+    started = last_line = time.perf_counter()
+    bar = console.progress_bar(progress, total=len(frames), desc="held-out views", unit="view", delay=2)
     for frame in frames:
+        now = time.perf_counter()
+        if images and now + (now - started) / len(images) > until:
+            break
         view = as_numpy(render(scene.cameras[[int(frame)]])[0])
         truth = scene.image(int(frame))
         alpha = scene.alpha(int(frame))
@@ -192,13 +206,51 @@ def heldout_scores(
         truths.append(truth)
         if keep_renders:
             renders.append((int(frame), view, truth))
+        bar.update(1)
+        if progress and bar.disable and time.perf_counter() - last_line >= console.STATUS_SECONDS:
+            last_line = time.perf_counter()
+            console.write_line(f"held-out view {len(images)}/{len(frames)} rendered ({last_line - started:.0f} s)")
+    bar.close()
     seconds = time.perf_counter() - started
     window = [i for i, truth in enumerate(truths) if min(truth.shape[:2]) >= SSIM_WINDOW]
     scores = {
         "psnr": mean_psnr(images, truths),
         "ssim": mean_ssim([images[i] for i in window], [truths[i] for i in window]) if window else math.nan,
         "opacity_error": float(np.mean(opacity_errors)) if opacity_errors else math.nan,
-        "views": len(frames),
-        "render_seconds_per_view": seconds / max(len(frames), 1),
+        "views": len(images),
+        "heldout_views": len(frames),
+        "render_seconds_per_view": seconds / max(len(images), 1),
     }
     return scores, renders
+
+
+class HeldoutEvaluation:
+    """A scene task's held-out scoring: a few views after each round, all of them at the end.
+
+    It times every view it renders, so that the final evaluation's cost is known before
+    training stops (:meth:`final_seconds`, what the time budget keeps for it) and the final
+    evaluation renders only the views the budget has room for (:mod:`pointfield.training.budget`).
+    """
+
+    def __init__(self, scene: Scene, heldout: Sequence[int], during: Sequence[int]):
+        self.scene, self.heldout, self.during_training = scene, heldout, during
+        self.seconds_per_view: float | None = None
+
+    def during(self, render: Renderer, keep_renders: bool = False) -> tuple[dict[str, float], list[HeldoutRender]]:
+        """The views scored after each round of training."""
+        return self._scored(render, self.during_training, keep_renders)
+
+    def final(
+        self, render: Renderer, budget: TimeBudget, progress: bool = False
+    ) -> tuple[dict[str, float], list[HeldoutRender]]:
+        """Every held-out view, or as many as ``budget`` leaves time for (at least one), with their renders."""
+        return self._scored(render, self.heldout, True, until=budget.deadline - WRITING_SECONDS, progress=progress)
+
+    def final_seconds(self) -> float | None:
+        """The final evaluation's estimated seconds, from the views rendered so far (None before any)."""
+        return None if self.seconds_per_view is None else self.seconds_per_view * len(self.heldout)
+
+    def _scored(self, render: Renderer, frames: Sequence[int], keep_renders: bool, **options: Any):
+        scores, renders = heldout_scores(render, self.scene, frames, keep_renders, **options)
+        self.seconds_per_view = scores["render_seconds_per_view"]
+        return scores, renders
