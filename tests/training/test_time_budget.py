@@ -49,8 +49,9 @@ def test_max_time_30_on_lego_returns_within_the_budget_with_metrics_and_curves(s
     assert history and pointfield.load_run(out, device="cpu").history == history
     assert history[-1]["step"] == metrics["steps"] >= 1
     assert 1 <= metrics["views"] <= metrics["heldout_views"] == 10
-    if metrics["startup_seconds"] > BUDGET - TOLERANCE:
-        pytest.skip(f"the machine is too busy to measure: start-up alone took {metrics['startup_seconds']:.0f} s")
+    if metrics["wall_seconds"] > BUDGET + TOLERANCE and metrics["steps"] == metrics["views"] == 1:
+        pytest.skip(f"the machine is too busy to measure: start-up took {metrics['startup_seconds']:.0f} s and one "
+                    f"step and one view (the least a run does) ended at {metrics['wall_seconds']:.0f} s")
     assert metrics["wall_seconds"] <= BUDGET + TOLERANCE
     reported = float(re.search(r"steps? in (\d+) s\)", closing).group(1))
     assert reported <= BUDGET + TOLERANCE
