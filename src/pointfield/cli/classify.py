@@ -14,6 +14,13 @@ from pathlib import Path
 from typing import Any
 
 MODELS = ("pointnet", "pointnet2", "pointnet2-msg")
+DEFAULT_RUN_COST = {
+    "classify": "A default run (PointNet, 10 epochs of the built-in shapes) takes about 15 minutes on a 2-core "
+    "laptop CPU, 90 seconds an epoch (one epoch costs about 170 CPU-seconds; docs/runs.md).",
+    "segment": "A default run (PointNet, 10 epochs of the built-in shapes' parts) takes about 25 minutes on a "
+    "2-core laptop CPU, 2.5 minutes an epoch (one epoch costs about 240 CPU-seconds; docs/runs.md).",
+}
+"""What a default run costs, said in ``train --help`` (measured: docs/runs.md)."""
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -27,7 +34,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "ply_hdf5_2048). Without DATA, the built-in synthetic shapes (10 classes).",
     )
     verbs = group.add_subparsers(dest="verb", metavar="SUBCOMMAND", required=True)
-    train = verbs.add_parser("train", help="train a classifier into a run folder")
+    train = verbs.add_parser(
+        "train", help="train a classifier into a run folder",
+        description="Train a shape classifier into a run folder. " + DEFAULT_RUN_COST["classify"],
+    )
     add_training_arguments(train, "classify")
     train.set_defaults(run=lambda args: run_train(args, "classify"))
     add_eval_parser(verbs, "classify")

@@ -11,7 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
-from pointfield.cli.classify import add_eval_parser, add_training_arguments, run_train
+from pointfield.cli.classify import DEFAULT_RUN_COST, add_eval_parser, add_training_arguments, run_train
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -25,7 +25,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "built-in synthetic shapes and their 17 parts.",
     )
     verbs = group.add_subparsers(dest="verb", metavar="SUBCOMMAND", required=True)
-    train = verbs.add_parser("train", help="train a segmenter into a run folder")
+    train = verbs.add_parser(
+        "train", help="train a segmenter into a run folder",
+        description="Train a per-point segmenter into a run folder. " + DEFAULT_RUN_COST["segment"],
+    )
     add_training_arguments(train, "segment")
     train.set_defaults(run=lambda args: run_train(args, "segment"))
     add_eval_parser(verbs, "segment")
