@@ -26,3 +26,11 @@ def test_train_help_says_what_a_default_run_costs(command, said, capsys):
     assert len(measured) == 1
     cpu_measured = int(re.search(r"\| (\d+) s \(\d", measured[0]).group(1))
     assert abs(int(cpu) - cpu_measured) <= 0.05 * cpu_measured  # the help's figure is the measurement's
+
+
+def test_nerf_exercise_help_says_what_its_100_epochs_cost(capsys):
+    with pytest.raises(SystemExit):
+        main(["nerf", "exercise", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "100 epochs (about 20 minutes on a 2-core laptop CPU: one epoch costs about 18 CPU-seconds" in text
+    assert "(18 s each)" in RUNS_DOC.read_text()

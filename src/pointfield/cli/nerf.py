@@ -111,8 +111,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
     exercise = verbs.add_parser(
         "exercise", help="the lesson's exercise: TinyNeRF on the cube, as DIR/REPORT.md",
-        description="Train TinyNeRF on the synthetic cube for 100 epochs (about 10 minutes on a "
-        "2-core CPU) and write DIR/REPORT.md: loss and held-out PSNR at epochs 1, 10 and 100, a "
+        description="Train TinyNeRF on the synthetic cube for 100 epochs (about 20 minutes on a "
+        "2-core laptop CPU: one epoch costs about 18 CPU-seconds; docs/runs.md) and write DIR/REPORT.md: "
+        "loss and held-out PSNR at epochs 1, 10 and 100, a "
         "strip of held-out renders, and the first epoch reaching 20 dB.",
     )
     exercise.add_argument("--out", type=Path, default=Path("nerf-exercise"), help="report folder (default nerf-exercise)")
