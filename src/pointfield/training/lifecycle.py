@@ -57,7 +57,6 @@ def train(
     device: str | None = None,
     max_time: float | None = None,
     max_training_time: float | None = None,
-    started: float | None = None,
     checkpoint_seconds: float | None = 300.0,
     progress: bool = True,
 ) -> dict[str, Any]:
@@ -66,13 +65,12 @@ def train(
     ``settings`` are the task's own (see its ``configure``); a setting given as None means
     "the default", or, when resuming, "as the run had it". ``options`` go to the task's
     constructor and are not part of the run's record (data-loading workers, say). ``max_time``:
-    the call returns within that many seconds of wall clock from ``started`` (a
-    :func:`time.perf_counter` reading; default: the call), with its final evaluation scaled to
+    the call returns within that many seconds of wall clock, with its final evaluation scaled to
     fit (module doc). ``max_training_time``: stop training after that many seconds of it
     (evaluation excluded), summed over resumed sessions. Launched by ``torchrun`` with several
     processes, this trains with DistributedDataParallel.
     """
-    started = time.perf_counter() if started is None else started
+    started = time.perf_counter()
     try:
         budget = TimeBudget(max_time, started)
     except ValueError as error:
