@@ -1,4 +1,4 @@
-"""``--max-time`` is the wall clock of the whole command, and every run ends with its record.
+"""``--max-time`` is the wall clock of the whole command; every run ends with its record; errors use the caller's words.
 
 The commands run through :func:`pointfield.cli.main` in this process, so the interpreter's own
 start and torch's import (done by the suite already) are outside what is measured, as the issue
@@ -109,3 +109,13 @@ def test_a_run_stopped_before_its_first_evaluation_ends_with_its_record_curves_a
     assert len(history) == 1 and history[0]["partial"] is True and history[0]["step"] == 1
     assert (out / "training_curves.png").is_file()
     assert strict((out / "metrics.json").read_text())["views"] == 1
+
+
+def test_the_exercise_over_an_old_one_says_out_to_python_and_dash_dash_out_to_the_command_line(tmp_path, capsys):
+    from pointfield.exercises.tinynerf import exercise
+
+    (tmp_path / "run").mkdir()
+    with pytest.raises(pointfield.PointfieldError, match="choose another out$"):
+        exercise(tmp_path)
+    assert main(["nerf", "exercise", "--out", str(tmp_path)]) == 1
+    assert capsys.readouterr().err.strip().endswith("choose another --out")

@@ -55,7 +55,8 @@ def exercise(
     """Train TinyNeRF on the cube for ``epochs`` epochs and write ``out/REPORT.md``; returns its numbers."""
     out = Path(out)
     if (out / "run").exists():
-        raise PointfieldError(f"{out} already holds an exercise run; choose another --out")
+        raise PointfieldError(f"{out} already holds an exercise run; choose another out",
+                              command_line=f"{out} already holds an exercise run; choose another --out")
     if epochs < 1:
         raise PointfieldError(f"epochs must be at least 1, got {epochs}")
     rays_per_epoch = _training_rays(views, size)
