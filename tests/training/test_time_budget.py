@@ -119,3 +119,24 @@ def test_the_exercise_over_an_old_one_says_out_to_python_and_dash_dash_out_to_th
         exercise(tmp_path)
     assert main(["nerf", "exercise", "--out", str(tmp_path)]) == 1
     assert capsys.readouterr().err.strip().endswith("choose another --out")
+
+
+def test_a_final_evaluation_that_cannot_fit_one_view_scores_smaller_views(monkeypatch):
+    scene = synthetic_scene("cube", views=12, size=128)
+    clock = [0.0]
+    monkeypatch.setattr(heldout.time, "perf_counter", lambda: clock[0])
+    sizes = []
+
+    def render(cameras):  # 16 s a view at 128 x 128, in proportion to the pixels
+        width, height = int(cameras.width[0]), int(cameras.height[0])
+        sizes.append(width)
+        clock[0] += 16.0 * width * height / 128**2
+        return [{"rgb": torch.zeros(height, width, 3), "depth": torch.zeros(height, width),
+                 "opacity": torch.ones(height, width)}]
+
+    evaluation = heldout.HeldoutEvaluation(scene, [0, 1, 2], [0])
+    evaluation.during(render)  # measures 16 s a view at full size
+    scores, renders = evaluation.final(render, TimeBudget(16.0 + 5.0 + heldout.WRITING_SECONDS, started=0.0))
+    # 5 s left: a full-size view (16 s) does not fit, a half-size one (4 s) does, and a second would not.
+    assert scores["evaluation_downscale"] == 2 and sizes[1:] == [64] and scores["views"] == 1
+    assert renders[0][1]["rgb"].shape == (64, 64, 3) == renders[0][2].shape

@@ -42,8 +42,11 @@ def clock_text(metrics: dict, args: argparse.Namespace) -> str:
 
 
 def views_text(metrics: dict) -> str:
-    """``" on 3 of 10 held-out views (all would not fit --max-time)"`` when the final evaluation was cut short."""
+    """``" on 3 of 10 held-out views at 1/2 size (all would not fit --max-time)"`` when the final evaluation
+    was cut short or shrunk to fit."""
     views, heldout = metrics.get("views"), metrics.get("heldout_views")
-    if views is None or heldout is None or views >= heldout:
+    downscale = metrics.get("evaluation_downscale", 1)
+    if views is None or heldout is None or (views >= heldout and downscale == 1):
         return ""
-    return f" on {views} of {heldout} held-out views (all would not fit --max-time)"
+    size = f" at 1/{downscale} size" if downscale > 1 else ""
+    return f" on {views} of {heldout} held-out views{size} (all would not fit --max-time)"

@@ -243,14 +243,39 @@ class HeldoutEvaluation:
     def final(
         self, render: Renderer, budget: TimeBudget, progress: bool = False
     ) -> tuple[dict[str, float], list[HeldoutRender]]:
-        """Every held-out view, or as many as ``budget`` leaves time for (at least one), with their renders."""
-        return self._scored(render, self.heldout, True, until=budget.deadline - WRITING_SECONDS, progress=progress)
+        """Every held-out view, or as many as ``budget`` leaves time for (at least one), with their renders.
+
+        Where even one view at full size would not fit (a view's measured cost is more than the
+        time left), the views are scored at a half, a quarter ... of their size, down to
+        :data:`SMALLEST_FINAL_SIDE` pixels, and ``evaluation_downscale`` in the scores says by how much.
+        """
+        until = budget.deadline - WRITING_SECONDS
+        factor = self._downscale_to_fit(until - time.perf_counter())
+        scene = self.scene.downscaled(factor)
+        scores, renders = self._scored(render, self.heldout, True, until=until, progress=progress, scene=scene)
+        return ({**scores, "evaluation_downscale": factor} if factor > 1 else scores), renders
 
     def final_seconds(self) -> float | None:
         """The final evaluation's estimated seconds, from the views rendered so far (None before any)."""
         return None if self.seconds_per_view is None else self.seconds_per_view * len(self.heldout)
 
-    def _scored(self, render: Renderer, frames: Sequence[int], keep_renders: bool, **options: Any):
-        scores, renders = heldout_scores(render, self.scene, frames, keep_renders, **options)
-        self.seconds_per_view = scores["render_seconds_per_view"]
+    def _downscale_to_fit(self, seconds: float) -> int:
+        """The power of two by which to shrink the views so that one renders in ``seconds`` (its cost ~ its pixels)."""
+        if self.seconds_per_view is None:
+            return 1
+        side = min(int(self.scene.cameras.width.min()), int(self.scene.cameras.height.min()))
+        factor = 1
+        while self.seconds_per_view / factor**2 > seconds and side // (2 * factor) >= SMALLEST_FINAL_SIDE:
+            factor *= 2
+        return factor
+
+    def _scored(self, render: Renderer, frames: Sequence[int], keep_renders: bool, scene: Scene | None = None,
+                **options: Any):
+        scores, renders = heldout_scores(render, scene or self.scene, frames, keep_renders, **options)
+        if scene is None or scene is self.scene:  # a cost measured at full size
+            self.seconds_per_view = scores["render_seconds_per_view"]
         return scores, renders
+
+
+SMALLEST_FINAL_SIDE = 32
+"""The smallest side, in pixels, a final evaluation shrinks its views to (to fit a time budget)."""
