@@ -159,7 +159,7 @@ def lego_part(args, record: Record) -> None:
     """Lego: opacity training against none, and the distortion loss against none, at equal training
     time; then the timed 256^3 mesh export."""
     rows = []
-    common = {"downscale": 8, "holdout_every": 10, "max_time": args.lego_time, "progress": False}
+    common = {"downscale": 8, "holdout_every": 10, "max_training_time": args.lego_time, "progress": False}
     contenders = {
         ("ngp", "random backgrounds"): lambda out: train_field(str(LEGO), model="ngp", out=out, steps=100_000,
                                                                random_background=True, **common),
@@ -262,10 +262,10 @@ def main() -> int:
             shutil.rmtree(run_path, ignore_errors=True)  # as for lego's runs
             if model == "ngp":
                 metrics = train_field(str(data), model="ngp", out=run_path, steps=100_000,
-                                                        max_time=args.max_time, progress=False)
+                                                        max_training_time=args.max_time, progress=False)
             else:  # with the geometry recipe, which is for this (off by default: it costs PSNR on lego)
                 metrics = train_splats(str(data), out=run_path, steps=SPLAT_STEPS, **SPLAT_GEOMETRY,
-                                       max_time=args.max_time, progress=False)
+                                       max_training_time=args.max_time, progress=False)
             record.figures[f"{name}/{model}/training"] = {key: metrics.get(key) for key in (
                 "psnr", "ssim", "opacity_error", "steps", "training_seconds")}
             record.note(f"{name} {model}: held-out PSNR {metrics['psnr']:.2f} dB, opacity error "

@@ -78,7 +78,7 @@ def train_scene_model(model: str, args, out: Path) -> dict:
     """Train ``model`` ("ngp" or "splat") on lego into ``out``: its curve and final figures."""
     from pointfield.training import RunDirectory
 
-    common = {"out": out, "max_time": getattr(args, f"{model}_seconds"), "eval_views": 10, "progress": False,
+    common = {"out": out, "max_training_time": getattr(args, f"{model}_seconds"), "eval_views": 10, "progress": False,
               "downscale": args.downscale, "holdout_every": 10, "device": args.device,
               "eval_every": getattr(args, f"{model}_eval_every"), "steps": getattr(args, f"{model}_steps")}
     shutil.rmtree(out, ignore_errors=True)  # an earlier run of the benchmark's: training refuses a used folder
@@ -223,7 +223,7 @@ def cube_geometry(args, out: Path) -> dict:
 
     data = make_scene("textured-cube", out / "textured-cube", views=100, size=100, overwrite=True)
     shutil.rmtree(out / "ngp", ignore_errors=True)  # an earlier run of the benchmark's: training refuses a used folder
-    metrics = train(str(data), model="ngp", out=out / "ngp", steps=100_000, max_time=args.geometry_seconds,
+    metrics = train(str(data), model="ngp", out=out / "ngp", steps=100_000, max_training_time=args.geometry_seconds,
                     device=args.device, progress=False)
     run = pointfield.load_run(out / "ngp", args.device)
     scored = truth_scorer("textured-cube", 1_000_000)

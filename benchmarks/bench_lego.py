@@ -67,7 +67,7 @@ def run_field(model: str, args, out: Path) -> tuple[dict, Callable[[], object]]:
         "ngp": {"steps": args.ngp_steps, "max_time": args.ngp_seconds, "eval_every": args.ngp_eval_every},
     }[model]
     started = time.perf_counter()
-    metrics = train(args.scene, model=model, out=out, steps=settings["steps"], max_time=settings["max_time"],
+    metrics = train(args.scene, model=model, out=out, steps=settings["steps"], max_training_time=settings["max_time"],
                     eval_every=settings["eval_every"], eval_views=10, progress=False, **SCENE)
     wall = time.perf_counter() - started
     records = RunDirectory(out).read_metrics_log()
@@ -83,7 +83,7 @@ def run_splat(args, out: Path) -> tuple[dict, Callable[[], object]]:
     from pointfield.training import RunDirectory
 
     started = time.perf_counter()
-    metrics = train(args.scene, out=out, steps=args.splat_steps, max_time=args.splat_seconds,
+    metrics = train(args.scene, out=out, steps=args.splat_steps, max_training_time=args.splat_seconds,
                     eval_every=args.splat_eval_every, eval_views=10, progress=False,
                     downscale=SCENE["downscale"], holdout_every=SCENE["holdout_every"])
     wall = time.perf_counter() - started

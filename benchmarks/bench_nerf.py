@@ -63,7 +63,7 @@ def main() -> int:
             started = time.perf_counter()
             metrics = train(
                 args.scene, model=model, out=root / f"lego-{model}", steps=steps[model],
-                max_time=args.max_time, batch_rays=args.batch_rays or recipe["batch_rays"],
+                max_training_time=args.max_time, batch_rays=args.batch_rays or recipe["batch_rays"],
                 downscale=8, holdout_every=10,
                 background="white", device=args.device, learning_rate=recipe["learning_rate"],
                 eval_every=max(steps[model] // 10, 1), progress=False,

@@ -281,7 +281,7 @@ def training_table(record: Record, args) -> None:
     heldout = {label: heldout_names(scene) for label, scene in scenes.items()}
     same_views = heldout["given poses"] == heldout["SfM poses"]
     record.verdict("both trainings hold out the same views", same_views, ", ".join(heldout["given poses"]))
-    common = {"downscale": args.downscale, "holdout_every": 8, "max_time": args.training_seconds, "progress": False}
+    common = {"downscale": args.downscale, "holdout_every": 8, "max_training_time": args.training_seconds, "progress": False}
 
     def field_run(scene: Path, out: str):
         return lambda: train_field(scene, model="ngp", out=args.out / out, eval_views=10, steps=10**6, **common)

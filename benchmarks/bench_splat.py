@@ -75,7 +75,7 @@ def main() -> int:
               "view of a held-out camera without gradients.")
     started = time.perf_counter()
     metrics = train(
-        args.scene, out=args.out, steps=args.steps, max_time=args.max_time, downscale=8,
+        args.scene, out=args.out, steps=args.steps, max_training_time=args.max_time, downscale=8,
         holdout_every=10, eval_every=args.eval_every, eval_views=10,
         initial_splats=args.initial_splats, max_splats=args.max_splats, resume=args.resume,
         progress=False,

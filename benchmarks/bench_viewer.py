@@ -133,7 +133,7 @@ def train_runs(ngp: Path | None, splats: Path | None, seconds: float) -> tuple[P
     from pointfield.fields.train import train as train_field
     from pointfield.splats.train import train as train_splats
 
-    common = {"downscale": 8, "holdout_every": 10, "max_time": seconds, "progress": False}
+    common = {"downscale": 8, "holdout_every": 10, "max_training_time": seconds, "progress": False}
     if ngp is None:
         ngp = OUTPUT / "lego-ngp"
         if not (ngp / "metrics.json").is_file():

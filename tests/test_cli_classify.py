@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -89,7 +90,35 @@ def test_predict_prints_one_line_per_file(runs, shape_files, capsys):
 
 def test_a_second_run_into_the_same_folder_needs_resume(runs, capsys):
     code = main(["classify", "train", "--out", str(runs["pointnet"]), *TINY])
-    assert code == 1 and "--resume" in capsys.readouterr().err
+    error = capsys.readouterr().err
+    assert code == 1 and "pass --resume to continue it, or choose another --out" in error
+    assert "resume=True" not in error
+
+
+def test_python_callers_are_told_the_python_names_of_resume_and_out(runs):
+    with pytest.raises(pointfield.PointfieldError, match="pass resume=True to continue it, or choose another out$"):
+        pointfield.classify.train(out=runs["pointnet"], epochs=1, points=64, shapes_per_class=2, batch_size=8,
+                                  device="cpu", progress=False)
+
+
+def test_only_a_model_with_a_regulariser_logs_one(runs):
+    def logged(model: str) -> set[str]:
+        return set(json.loads((runs[model] / "metrics.jsonl").read_text().splitlines()[-1]))
+
+    assert "train_regulariser" in logged("pointnet")  # the feature T-Net's orthogonality loss
+    assert "train_regulariser" not in logged("pointnet2")  # PointNet++ has none: no "regulariser 0.0000"
+
+
+def test_predict_with_an_interrupted_run_says_it_is_unfinished(runs, shape_files, tmp_path, capsys):
+    interrupted = tmp_path / "interrupted"
+    shutil.copytree(runs["pointnet"], interrupted)
+    (interrupted / "metrics.json").unlink()  # as a run killed before its end leaves it
+    assert main(["classify", "predict", str(runs["pointnet"]), str(shape_files[0])]) == 0
+    assert "unfinished" not in capsys.readouterr().err
+    assert main(["classify", "predict", str(interrupted), str(shape_files[0])]) == 0
+    warning = capsys.readouterr().err
+    assert "is an unfinished run (it stopped after epoch 1 of 1 and has no metrics.json)" in warning
+    assert "predictions come from its last checkpoint" in warning
 
 
 def test_resume_of_a_finished_run_trains_further_epochs(tmp_path, capsys):

@@ -10,7 +10,16 @@ import os
 
 
 class PointfieldError(Exception):
-    """Base class of every error pointfield raises deliberately."""
+    """Base class of every error pointfield raises deliberately.
+
+    Its message names settings as a Python caller spells them (``resume=True``, ``out``). Where
+    the command line spells them otherwise, ``command_line`` is the message as the command
+    prints it (``--resume``, ``--out``); library code never prints command-line flags itself.
+    """
+
+    def __init__(self, *args: object, command_line: str | None = None):
+        super().__init__(*args)
+        self.command_line = command_line
 
 
 class FormatError(PointfieldError, ValueError):

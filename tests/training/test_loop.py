@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import io
 import json
+import sys
 
 import pytest
 import torch
@@ -13,9 +15,11 @@ from pointfield.training import (
     RunDirectory,
     fit,
     load_checkpoint,
+    loop,
     restore,
     save_checkpoint,
 )
+from pointfield.training.budget import TimeBudget
 
 IDENTITY = {"task": "toy", "model": "linear"}
 
@@ -184,13 +188,111 @@ def test_a_nan_loss_stops_training_with_a_clear_error(tmp_path):
         torch.testing.assert_close(a, b)
 
 
-def test_max_seconds_stops_after_the_current_step_with_a_checkpoint(tmp_path):
+def test_max_training_seconds_stops_after_the_current_step_with_a_checkpoint(tmp_path):
     model, optimizer, batches, step = toy_problem()
     run = RunDirectory(tmp_path)
     run.create(resume=False)
-    state = fit(model, optimizer, step, batches, 100, run=run, max_seconds=0.0,
+    state = fit(model, optimizer, step, batches, 100, run=run, max_training_seconds=0.0,
                 progress=False, log=lambda line: None)
     assert state.step == 1 and load_checkpoint(run.checkpoint)["state"]["step"] == 1
+
+
+def test_a_run_stopped_before_its_first_evaluation_still_logs_a_partial_record_and_draws_it(tmp_path):
+    model, optimizer, batches, step = toy_problem()
+    run = RunDirectory(tmp_path)
+    run.create(resume=False)
+    drawn, lines = [], []
+    state = fit(model, optimizer, step, batches, 100, run=run, max_training_seconds=0.0,
+                evaluate=lambda epoch: {"test_score": 1.0}, on_epoch_end=drawn.append, progress=False,
+                log=lines.append)
+    records = run.read_metrics_log()
+    assert len(records) == 1 and records[0]["partial"] is True
+    assert records[0]["epoch"] == pytest.approx(1 / 5) and records[0]["step"] == 1
+    assert records[0]["train_loss"] == pytest.approx(state.running["loss"])
+    assert "test_score" not in records[0]  # stopped before any evaluation
+    assert drawn == [records] and lines[-1].startswith("stopped in time in epoch 1/100 at step 1")
+    assert state.history == []  # the checkpoint keeps whole epochs only
+
+
+def test_resuming_a_partial_epoch_replaces_its_record_with_the_whole_epochs(tmp_path):
+    model, optimizer, batches, step = toy_problem()
+    run = RunDirectory(tmp_path)
+    run.create(resume=False)
+    fit(model, optimizer, step, batches, 2, run=run, max_training_seconds=0.0, progress=False, log=lambda line: None)
+    fit(model, optimizer, step, batches, 2, run=run, resume=True, progress=False, log=lambda line: None)
+    assert [record["epoch"] for record in run.read_metrics_log()] == [1, 2]
+    assert not any(record.get("partial") for record in run.read_metrics_log())
+
+
+def test_a_time_budget_stops_training_leaving_its_reserve_for_the_final_evaluation():
+    model, optimizer, batches, step = toy_problem()
+    budget = TimeBudget(10.0)
+    finishing = 7.0  # the final evaluation's estimated seconds: the budget keeps 2 s (its share) for it
+    state = fit(model, optimizer, step, batches, 10**6, budget=budget, finishing=lambda: finishing,
+                progress=False, log=lambda line: None)
+    assert budget.reserve(finishing) == pytest.approx(2.0)
+    assert 1.9 <= budget.left() <= 2.0 + 0.5 and state.step > 1
+
+
+def test_an_evaluation_the_budget_cannot_hold_is_left_to_the_final_one(monkeypatch):
+    model, optimizer, batches, step = toy_problem()
+    clock = [0.0]
+    monkeypatch.setattr(loop.time, "perf_counter", lambda: clock[0])
+
+    def ticking_step(batch):
+        clock[0] += 1.0
+        return step(batch)
+
+    def evaluate(epoch):
+        clock[0] += 20.0
+        return {"test_score": float(epoch)}
+
+    # Epochs of 5 steps (5 s); the first evaluation takes 20 s; 100 s of budget, 20 s of which are kept.
+    state = fit(model, optimizer, ticking_step, batches, 100, budget=TimeBudget(100.0, started=0.0),
+                evaluate=evaluate, progress=False, log=lambda line: None)
+    evaluated = ["test_score" in record for record in state.history]
+    # Three epochs of 5 + 20 s end at 75 s; the fourth's steps end at 80 s, where only the 20 s kept
+    # for the final evaluation are left: its evaluation is skipped and training stops there.
+    assert evaluated == [True, True, True, False] and clock[0] == 80.0
+
+
+def test_off_a_terminal_training_prints_a_status_line_at_least_every_minute(monkeypatch):
+    model, optimizer, batches, step = toy_problem()
+    clock = [0.0]
+    monkeypatch.setattr(loop.time, "perf_counter", lambda: clock[0])
+
+    def slow_step(batch):
+        clock[0] += 25.0
+        return step(batch)
+
+    lines: list[str] = []
+    monkeypatch.setattr(loop, "_progress_bar", lambda *args: loop._NoBar())  # what tqdm is off a terminal
+    fit(model, optimizer, slow_step, batches, 1, progress=True, log=lines.append)
+    status = [line for line in lines if "batch" in line]
+    # Steps end at 25, 50, ..., 125 s: a line after the first, then once 60 s have passed (at 100 s).
+    assert [line.split("  ")[1] for line in status] == ["batch 1/5", "batch 4/5"]
+    assert lines[-1].startswith("epoch 1/1")
+
+
+def test_no_status_lines_when_asked_for_no_progress(monkeypatch):
+    model, optimizer, batches, step = toy_problem()
+    lines: list[str] = []
+    fit(model, optimizer, step, batches, 1, progress=False, log=lines.append)
+    assert len(lines) == 1 and lines[0].startswith("epoch 1/1")
+
+
+def test_each_line_is_flushed_so_a_log_file_shows_it_at_once(monkeypatch):
+    class File(io.StringIO):
+        flushed = ""
+
+        def flush(self):
+            self.flushed = self.getvalue()
+
+    output = File()
+    monkeypatch.setattr(sys, "stdout", output)
+    model, optimizer, batches, step = toy_problem()
+    fit(model, optimizer, step, batches, 1, progress=False)
+    assert output.flushed.startswith("epoch 1/1") and output.flushed == output.getvalue()
 
 
 def test_a_checkpoint_of_another_model_is_refused_by_name(tmp_path):
@@ -216,9 +318,11 @@ def test_files_that_are_not_checkpoints_are_refused(tmp_path):
         load_checkpoint(future)
 
 
-def test_a_new_run_refuses_to_overwrite_an_old_one(tmp_path):
+def test_a_new_run_refuses_to_overwrite_an_old_one_in_python_words(tmp_path):
     run = RunDirectory(tmp_path)
     run.create(resume=False)
     run.write_config({"task": "toy"})
-    with pytest.raises(PointfieldError, match="--resume"):
+    with pytest.raises(PointfieldError, match="pass resume=True to continue it, or choose another out$") as refused:
         RunDirectory(tmp_path).create(resume=False)
+    assert "--" not in str(refused.value)
+    assert refused.value.command_line.endswith("pass --resume to continue it, or choose another --out")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 import warnings
 from collections.abc import Sequence
 
@@ -52,7 +53,9 @@ def print_warning(message: Warning | str, category: type[Warning], filename: str
 def main(argv: Sequence[str] | None = None) -> int:
     """Run a command; expected failures print one line to stderr and return non-zero, and each
     warning is printed, when it happens, as one line (:func:`print_warning`)."""
+    started = time.perf_counter()  # what --max-time counts from
     args = build_parser().parse_args(argv)
+    args.started = started
     with warnings.catch_warnings():
         warnings.showwarning = print_warning
         return _run(args)
@@ -62,7 +65,8 @@ def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.run(args) or 0)
     except (PointfieldError, FileNotFoundError, IsADirectoryError, PermissionError) as error:
-        print(f"pointfield: error: {error}", file=sys.stderr)
+        # A PointfieldError may say its message in the command line's words (--resume, not resume=True).
+        print(f"pointfield: error: {getattr(error, 'command_line', None) or error}", file=sys.stderr)
         return 1
     except BrokenPipeError:
         # `pointfield cloud info x | head` closed our stdout: not an error; silence the flush.

@@ -14,6 +14,13 @@ from pathlib import Path
 from typing import Any
 
 MODELS = ("pointnet", "pointnet2", "pointnet2-msg")
+DEFAULT_RUN_COST = {
+    "classify": "A default run (PointNet, 10 epochs of the built-in shapes) takes about 15 minutes on a 2-core "
+    "laptop CPU, 90 seconds an epoch (one epoch costs about 170 CPU-seconds; docs/runs.md).",
+    "segment": "A default run (PointNet, 10 epochs of the built-in shapes' parts) takes about 25 minutes on a "
+    "2-core laptop CPU, 2.5 minutes an epoch (one epoch costs about 240 CPU-seconds; docs/runs.md).",
+}
+"""What a default run costs, said in ``train --help`` (measured: docs/runs.md)."""
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -27,7 +34,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "ply_hdf5_2048). Without DATA, the built-in synthetic shapes (10 classes).",
     )
     verbs = group.add_subparsers(dest="verb", metavar="SUBCOMMAND", required=True)
-    train = verbs.add_parser("train", help="train a classifier into a run folder")
+    train = verbs.add_parser(
+        "train", help="train a classifier into a run folder",
+        description="Train a shape classifier into a run folder. " + DEFAULT_RUN_COST["classify"],
+    )
     add_training_arguments(train, "classify")
     train.set_defaults(run=lambda args: run_train(args, "classify"))
     add_eval_parser(verbs, "classify")
@@ -120,17 +130,19 @@ def run_train(args: argparse.Namespace, task: str) -> int:
         options["label_field"] = args.label_field
     metrics = tasks.train(task, args.data, **options)
     if os.environ.get("RANK", "0") == "0":
-        print(f"{task} run {args.out}: {_scores_line(metrics)} ({metrics['epochs']} epochs, "
+        epochs = metrics["epochs"]
+        print(f"{task} run {args.out}: {_scores_line(metrics)} ({epochs} epoch{'' if epochs == 1 else 's'}, "
               f"{metrics['seconds']:.0f} s); see {args.out / 'metrics.json'}")
     return 0
 
 
 def run_eval(args: argparse.Namespace, task: str) -> int:
     from pointfield.clouds import run
+    from pointfield.training.run import to_json
 
     metrics = run.evaluate(task, args.run_dir, args.data, device=args.device, on_error=args.on_error)
     if args.json:
-        print(json.dumps(metrics, indent=2))
+        print(to_json(metrics, indent=2))
         return 0
     print(f"{metrics['samples']} test clouds: {_scores_line(metrics)}")
     label = "IoU" if task == "segment" else "accuracy"

@@ -9,7 +9,6 @@ imported only when a subcommand runs, so other commands start fast.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from pointfield.cli.geometry_options import (
@@ -17,6 +16,7 @@ from pointfield.cli.geometry_options import (
     export_geometry_of,
     opacity_error_text,
 )
+from pointfield.cli.training_options import add_max_time_option, clock_text, max_time_left, views_text
 from pointfield.cli.view import add_view_options, training_view
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
@@ -43,7 +43,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                        "tiny (the lesson's TinyNeRF, 4x128, 64 samples) or nerf (8x256 coarse + fine)")
     train.add_argument("--out", type=Path, default=Path("runs/nerf"), help="run folder (default runs/nerf)")
     train.add_argument("--steps", type=int, help="optimizer steps (default: tiny 2000, nerf 5000, ngp 3000)")
-    train.add_argument("--max-time", type=float, metavar="SECONDS", help="stop after this much training time")
+    add_max_time_option(train)
     train.add_argument("--batch-rays", type=int, default=1024, help="rays per step (default 1024)")
     train.add_argument("--downscale", type=int, default=1, help="divide image sizes by this integer (default 1)")
     train.add_argument("--holdout-every", type=int, metavar="N",
@@ -111,8 +111,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
     exercise = verbs.add_parser(
         "exercise", help="the lesson's exercise: TinyNeRF on the cube, as DIR/REPORT.md",
-        description="Train TinyNeRF on the synthetic cube for 100 epochs (about 10 minutes on a "
-        "2-core CPU) and write DIR/REPORT.md: loss and held-out PSNR at epochs 1, 10 and 100, a "
+        description="Train TinyNeRF on the synthetic cube for 100 epochs (about 20 minutes on a "
+        "2-core laptop CPU: one epoch costs about 18 CPU-seconds; docs/runs.md) and write DIR/REPORT.md: "
+        "loss and held-out PSNR at epochs 1, 10 and 100, a "
         "strip of held-out renders, and the first epoch reaching 20 dB.",
     )
     exercise.add_argument("--out", type=Path, default=Path("nerf-exercise"), help="report folder (default nerf-exercise)")
@@ -131,23 +132,25 @@ def run_train(args: argparse.Namespace) -> int:
         background = [float(value) for value in background.split(",")]
     with training_view(args):
         metrics = train(
-            args.scene, model=args.model, out=args.out, steps=args.steps, max_time=args.max_time,
+            args.scene, model=args.model, out=args.out, steps=args.steps, max_time=max_time_left(args),
             batch_rays=args.batch_rays, downscale=args.downscale, holdout_every=args.holdout_every,
             background=background, random_background=args.random_background, alpha_loss=args.alpha_loss, distortion=args.distortion, device=args.device, seed=args.seed, resume=args.resume,
             eval_every=args.eval_every, learning_rate=args.learning_rate, progress=args.progress,
             scene_box=[float(v) for v in args.scene_box.split(",")] if "," in args.scene_box else args.scene_box,
         )
-        print(f"nerf run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
-              f"{opacity_error_text(metrics)}({metrics['steps']} steps, {metrics['seconds']:.0f} s); see {args.out / 'metrics.json'}")
+        print(f"nerf run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB{views_text(metrics)}, SSIM "
+              f"{metrics['ssim']:.4f}, {opacity_error_text(metrics)}({clock_text(metrics, args)}); "
+              f"see {args.out / 'metrics.json'}")
     return 0
 
 
 def run_eval(args: argparse.Namespace) -> int:
     from pointfield.fields.run import evaluate
+    from pointfield.training.run import to_json
 
     metrics = evaluate(args.run_dir, device=args.device)
     if args.json:
-        print(json.dumps(metrics, indent=2))
+        print(to_json(metrics, indent=2))
     else:
         print(f"{metrics['views']} held-out views: PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f} "
               f"({metrics['render_seconds_per_view']:.2f} s per view)")

@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 
 from pointfield.cli import segment_scenes
-from pointfield.cli.classify import add_eval_parser, add_training_arguments
+from pointfield.cli.classify import DEFAULT_RUN_COST, add_eval_parser, add_training_arguments
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -28,7 +28,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "(see docs/scenes.md).",
     )
     verbs = group.add_subparsers(dest="verb", metavar="SUBCOMMAND", required=True)
-    train = verbs.add_parser("train", help="train a segmenter into a run folder")
+    train = verbs.add_parser(
+        "train", help="train a segmenter into a run folder",
+        description="Train a per-point segmenter into a run folder. " + DEFAULT_RUN_COST["segment"],
+    )
     add_training_arguments(train, "segment")
     segment_scenes.add_scene_arguments(train)
     train.set_defaults(run=segment_scenes.run_train)

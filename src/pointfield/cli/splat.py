@@ -15,6 +15,7 @@ from pointfield.cli.geometry_options import (
     export_geometry_of,
     opacity_error_text,
 )
+from pointfield.cli.training_options import add_max_time_option, clock_text, max_time_left, views_text
 from pointfield.cli.view import add_view_options, training_view
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
@@ -37,7 +38,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                        help="posed-image dataset (default: the built-in synthetic cube)")
     train.add_argument("--out", type=Path, default=Path("runs/splat"), help="run folder (default runs/splat)")
     train.add_argument("--steps", type=int, help="optimizer steps, one view each (default 3000)")
-    train.add_argument("--max-time", type=float, metavar="SECONDS", help="stop after this much training time")
+    add_max_time_option(train)
     train.add_argument("--downscale", type=int, default=1, help="divide image sizes by this integer (default 1)")
     train.add_argument("--holdout-every", type=int, metavar="N",
                        help="hold every N-th training view out for evaluation (for scenes without test views)")
@@ -119,7 +120,7 @@ def run_train(args: argparse.Namespace) -> int:
         background = [float(value) for value in background.split(",")]
     with training_view(args):
         metrics = train(
-            args.scene, out=args.out, steps=args.steps, max_time=args.max_time, downscale=args.downscale,
+            args.scene, out=args.out, steps=args.steps, max_time=max_time_left(args), downscale=args.downscale,
             holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss,
             opacity_entropy=args.opacity_entropy, flatness=args.flatness, antialiased=args.antialiased,
             screen_dilation=args.screen_dilation, depth_distortion=args.depth_distortion,
@@ -128,9 +129,9 @@ def run_train(args: argparse.Namespace) -> int:
             resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,
             init=args.init, eval_every=args.eval_every, progress=args.progress,
         )
-        print(f"splat run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
-              f"{opacity_error_text(metrics)}{metrics['splats']:,} splats ({metrics['steps']} steps, {metrics['seconds']:.0f} s); "
-              f"see {args.out / 'metrics.json'}")
+        print(f"splat run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB{views_text(metrics)}, SSIM "
+              f"{metrics['ssim']:.4f}, {opacity_error_text(metrics)}{metrics['splats']:,} splats "
+              f"({clock_text(metrics, args)}); see {args.out / 'metrics.json'}")
     return 0
 
 

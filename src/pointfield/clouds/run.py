@@ -77,6 +77,7 @@ class CloudRun(Run):
         matrix as a list of rows, and the number of ``samples``.
         """
         config, task = self.config, self.task
+        self.warn_if_unfinished("these scores are")
         data = data if data is not None else config["data"]
         dataset = open_data(
             task, data, "test", seed=config["seed"], on_error=on_error,
@@ -116,6 +117,7 @@ class CloudRun(Run):
         paths = [Path(f) for f in files]
         if not paths:
             raise PointfieldError("no files to predict")
+        self.warn_if_unfinished("predictions come from")
         collate = CloudCollate(config["features"])
         out_dir = Path(out) if out is not None else self.path / "predictions"
         if task == "segment":

@@ -248,7 +248,10 @@ class CloudTask(Task):
             loss = F.cross_entropy(flat, target, ignore_index=-1)
             real = target >= 0
             correct = (flat.argmax(-1)[real] == target[real]).float().mean()
-        return Step(loss, {"accuracy": float(correct)}, {"regulariser": regulariser})
+        # A model without a regulariser (PointNet++, PointNet without its feature T-Net) returns a
+        # constant 0: no loss term, and nothing to log.
+        auxiliary = {"regulariser": regulariser} if regulariser.requires_grad else {}
+        return Step(loss, {"accuracy": float(correct)}, auxiliary)
 
     def evaluate(self, epoch: int) -> dict[str, float]:
         if self.distributed is not None:

@@ -8,9 +8,9 @@ epochs and a few between (``DIR/strip.png``), and the first epoch whose held-out
 
 Scene size: 48 views of the cube at 20 x 20 pixels (40 training views, 16,000 training rays;
 4 test views held out, 4 validation views unused), 32 samples per ray, 1,024 rays per step
-(16 steps per epoch), Adam at 1e-3. Chosen so that 100 epochs take about 10 minutes on a 2-core
-CPU: TinyNeRF trains at about 30,000 to 40,000 field samples per second there, so an epoch
-(512,000 samples) takes about 5 seconds including its one-view evaluation.
+(16 steps per epoch), Adam at 1e-3. Chosen so that 100 epochs take minutes on a 2-core CPU:
+measured, an epoch (512,000 samples) with its one-view evaluation costs about 18 CPU-seconds,
+so 100 epochs take about 20 minutes on a quiet 2-core laptop (docs/runs.md).
 """
 
 from __future__ import annotations
@@ -55,7 +55,8 @@ def exercise(
     """Train TinyNeRF on the cube for ``epochs`` epochs and write ``out/REPORT.md``; returns its numbers."""
     out = Path(out)
     if (out / "run").exists():
-        raise PointfieldError(f"{out} already holds an exercise run; choose another --out")
+        raise PointfieldError(f"{out} already holds an exercise run; choose another out",
+                              command_line=f"{out} already holds an exercise run; choose another --out")
     if epochs < 1:
         raise PointfieldError(f"epochs must be at least 1, got {epochs}")
     rays_per_epoch = _training_rays(views, size)

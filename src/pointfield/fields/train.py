@@ -57,9 +57,9 @@ from pointfield.fields.scene_box import (
 )
 from pointfield.metrics import psnr_from_mse
 from pointfield.scenes.heldout import (
+    HeldoutEvaluation,
     HeldoutRender,
     depth_bounds,
-    heldout_scores,
     open_scene_of,
     ray_bounds,
     scene_config,
@@ -214,6 +214,7 @@ class NerfTask(Task):
         self.identity = identity_of(config)
         self.budget = None if self.model.target_samples is None else RayBudget(self.model.target_samples)
         self.evaluated = self.heldout_frames[: max(1, config["eval_views"])]
+        self.heldout = HeldoutEvaluation(self.scene, self.heldout_frames, self.evaluated)
         self._permutations: dict[int, torch.Tensor] = {}
 
     def warm_up(self) -> None:
@@ -267,7 +268,7 @@ class NerfTask(Task):
 
     def evaluate(self, epoch: int) -> dict[str, float]:
         keep = self.on_evaluate is not None
-        scores, renders = heldout_scores(self.render, self.scene, self.evaluated, keep_renders=keep)
+        scores, renders = self.heldout.during(self.render, keep_renders=keep)
         finished = min((epoch + 1) * self.round_steps, self.config["steps"])
         record = {"psnr": scores["psnr"], "opacity_error": scores["opacity_error"],
                   "epochs": finished / self.steps_per_epoch}
@@ -281,8 +282,8 @@ class NerfTask(Task):
         plot_training_curves(records, run.path / CURVES_PNG, title=f"{self.config['model']} NeRF", x="step")
 
     def finish(self, run: RunDirectory, state: TrainingState) -> dict[str, Any]:
-        """Score every held-out view, save their renders beside the ground truth."""
-        scores, renders = heldout_scores(self.render, self.scene, self.heldout_frames, keep_renders=True)
+        """Score every held-out view (as many as the time budget holds); save their renders beside the truth."""
+        scores, renders = self.heldout.final(self.render, self.time_budget, self.progress)
         save_panels(run.path / HELDOUT_DIR, renders, self.near, self.far)
         return {
             **scores,
@@ -290,6 +291,9 @@ class NerfTask(Task):
             "epochs": state.step / self.steps_per_epoch,
             "training_rays": len(self.rays),
         }
+
+    def finishing_seconds(self) -> float | None:
+        return self.heldout.final_seconds()
 
 
 def train(
@@ -299,6 +303,7 @@ def train(
     out: str | os.PathLike[str] = "runs/nerf",
     steps: int | None = None,
     max_time: float | None = None,
+    max_training_time: float | None = None,
     batch_rays: int = 1024,
     downscale: int = 1,
     holdout_every: int | None = None,
@@ -323,12 +328,16 @@ def train(
 
     ``model`` is "ngp" (the hash-grid field, the default: the fast one), "tiny" (the lesson's
     TinyNeRF) or "nerf" (the original coarse + fine NeRF).
-    ``steps`` defaults to 2000 (tiny), 5000 (nerf) or 3000 (ngp); ``max_time`` stops earlier
-    (seconds of training, summed over resumed sessions). Every ``eval_every`` steps (default:
-    one epoch, at most 500 steps) the first ``eval_views`` held-out views are rendered and
-    scored. Without ``scene``, the synthetic cube of ``cube_views`` views of ``cube_size``
-    pixels square is rendered and trained on. ``background`` ("white", "black" or an RGB
-    triple) replaces the scene's: images' alpha is composited onto it and so is every render.
+    ``steps`` defaults to 2000 (tiny), 5000 (nerf) or 3000 (ngp); ``max_time``: the call returns
+    within that many seconds of wall clock, start-up and the final evaluation included (which
+    scores as many held-out views as fit, ``views`` of ``heldout_views``); ``max_training_time``
+    stops after that many seconds of training instead (evaluation excluded, summed over resumed
+    sessions), then scores every held-out view: what benchmarks at equal training time use.
+    Every ``eval_every`` steps (default: one epoch, at most 500 steps) the first ``eval_views``
+    held-out views are rendered and scored. Without ``scene``, the synthetic cube of
+    ``cube_views`` views of ``cube_size`` pixels square is rendered and trained on.
+    ``background`` ("white", "black" or an RGB triple) replaces the scene's: images' alpha is
+    composited onto it and so is every render.
     Where the images have alpha, opacity is trained towards it (:mod:`pointfield.training.opacity`):
     ``random_background`` trains as if a random colour were behind each ray, in expectation
     (None: on), and ``alpha_loss`` adds ``weight * mean |opacity - alpha|`` to the loss (None: 0,
@@ -351,4 +360,4 @@ def train(
         "cube_views": cube_views, "cube_size": cube_size,
     }
     return lifecycle.train(NerfTask, settings, options={"on_evaluate": on_evaluate}, out=out, resume=resume,
-                           device=device, max_time=max_time, progress=progress)
+                           device=device, max_time=max_time, max_training_time=max_training_time, progress=progress)

@@ -32,6 +32,8 @@ from pointfield.scenes.cameras import Cameras
 from pointfield.scenes.formats import read_scene
 from pointfield.scenes.scene import Scene, SceneError
 from pointfield.scenes.synthetic import synthetic_scene
+from pointfield.training import console
+from pointfield.training.budget import WRITING_SECONDS, TimeBudget
 
 OUTPUTS = ("rgb", "depth", "median_depth", "opacity")
 """What a scene model renders: colour ``(H, W, 3)`` in [0, 1]; expected depth ``(H, W)``, the
@@ -169,20 +171,32 @@ def as_numpy(view: View) -> dict[str, np.ndarray]:
 
 @torch.no_grad()
 def heldout_scores(
-    render: Renderer, scene: Scene, frames: Sequence[int], keep_renders: bool = False
+    render: Renderer, scene: Scene, frames: Sequence[int], keep_renders: bool = False,
+    until: float = math.inf, progress: bool = False,
 ) -> tuple[dict[str, float], list[HeldoutRender]]:
     """PSNR (mean of per-view PSNR), mean SSIM and opacity error of ``render`` over held-out ``frames``.
 
-    Returns ``({"psnr", "ssim", "opacity_error", "views", "render_seconds_per_view"}, renders)``,
-    with ``renders`` ``[(frame, view arrays, truth)]`` when ``keep_renders`` (else empty). SSIM
-    needs views of at least 11 x 11 pixels; smaller ones give NaN. ``opacity_error`` is the mean
-    over views of the mean absolute difference between the rendered opacity and the image's
-    alpha (NaN for images without alpha): how far the geometry is from the object's silhouette,
-    which colour alone does not pin down on a background of the object's colour.
+    Returns ``({"psnr", "ssim", "opacity_error", "views", "heldout_views",
+    "render_seconds_per_view"}, renders)``, with ``renders`` ``[(frame, view arrays, truth)]``
+    when ``keep_renders`` (else empty). SSIM needs views of at least 11 x 11 pixels; smaller ones
+    give NaN. ``opacity_error`` is the mean over views of the mean absolute difference between
+    the rendered opacity and the image's alpha (NaN for images without alpha): how far the
+    geometry is from the object's silhouette, which colour alone does not pin down on a
+    background of the object's colour.
+
+    ``until`` (a :func:`time.perf_counter` reading): the first view is always scored, each
+    further one only if the mean time of those before says it is done by then; ``views`` is how
+    many were scored, ``heldout_views`` how many were asked for. ``progress``: a bar over the
+    views on a terminal once the evaluation has taken a couple of seconds, and off a terminal a
+    line at least every minute (:mod:`pointfield.training.console`).
     """
     images, truths, renders, opacity_errors = [], [], [], []
-    started = time.perf_counter()
+    started = last_line = time.perf_counter()
+    bar = console.progress_bar(progress, total=len(frames), desc="held-out views", unit="view", delay=2)
     for frame in frames:
+        now = time.perf_counter()
+        if images and now + (now - started) / len(images) > until:
+            break
         view = as_numpy(render(scene.cameras[[int(frame)]])[0])
         truth = scene.image(int(frame))
         alpha = scene.alpha(int(frame))
@@ -192,13 +206,76 @@ def heldout_scores(
         truths.append(truth)
         if keep_renders:
             renders.append((int(frame), view, truth))
+        bar.update(1)
+        if progress and bar.disable and time.perf_counter() - last_line >= console.STATUS_SECONDS:
+            last_line = time.perf_counter()
+            console.write_line(f"held-out view {len(images)}/{len(frames)} rendered ({last_line - started:.0f} s)")
+    bar.close()
     seconds = time.perf_counter() - started
     window = [i for i, truth in enumerate(truths) if min(truth.shape[:2]) >= SSIM_WINDOW]
     scores = {
         "psnr": mean_psnr(images, truths),
         "ssim": mean_ssim([images[i] for i in window], [truths[i] for i in window]) if window else math.nan,
         "opacity_error": float(np.mean(opacity_errors)) if opacity_errors else math.nan,
-        "views": len(frames),
-        "render_seconds_per_view": seconds / max(len(frames), 1),
+        "views": len(images),
+        "heldout_views": len(frames),
+        "render_seconds_per_view": seconds / max(len(images), 1),
     }
     return scores, renders
+
+
+class HeldoutEvaluation:
+    """A scene task's held-out scoring: a few views after each round, all of them at the end.
+
+    It times every view it renders, so that the final evaluation's cost is known before
+    training stops (:meth:`final_seconds`, what the time budget keeps for it) and the final
+    evaluation renders only the views the budget has room for (:mod:`pointfield.training.budget`).
+    """
+
+    def __init__(self, scene: Scene, heldout: Sequence[int], during: Sequence[int]):
+        self.scene, self.heldout, self.during_training = scene, heldout, during
+        self.seconds_per_view: float | None = None
+
+    def during(self, render: Renderer, keep_renders: bool = False) -> tuple[dict[str, float], list[HeldoutRender]]:
+        """The views scored after each round of training."""
+        return self._scored(render, self.during_training, keep_renders)
+
+    def final(
+        self, render: Renderer, budget: TimeBudget, progress: bool = False
+    ) -> tuple[dict[str, float], list[HeldoutRender]]:
+        """Every held-out view, or as many as ``budget`` leaves time for (at least one), with their renders.
+
+        Where even one view at full size would not fit (a view's measured cost is more than the
+        time left), the views are scored at a half, a quarter ... of their size, down to
+        :data:`SMALLEST_FINAL_SIDE` pixels, and ``evaluation_downscale`` in the scores says by how much.
+        """
+        until = budget.deadline - WRITING_SECONDS
+        factor = self._downscale_to_fit(until - time.perf_counter())
+        scene = self.scene.downscaled(factor)
+        scores, renders = self._scored(render, self.heldout, True, until=until, progress=progress, scene=scene)
+        return ({**scores, "evaluation_downscale": factor} if factor > 1 else scores), renders
+
+    def final_seconds(self) -> float | None:
+        """The final evaluation's estimated seconds, from the views rendered so far (None before any)."""
+        return None if self.seconds_per_view is None else self.seconds_per_view * len(self.heldout)
+
+    def _downscale_to_fit(self, seconds: float) -> int:
+        """The power of two by which to shrink the views so that one renders in ``seconds`` (its cost ~ its pixels)."""
+        if self.seconds_per_view is None:
+            return 1
+        side = min(int(self.scene.cameras.width.min()), int(self.scene.cameras.height.min()))
+        factor = 1
+        while self.seconds_per_view / factor**2 > seconds and side // (2 * factor) >= SMALLEST_FINAL_SIDE:
+            factor *= 2
+        return factor
+
+    def _scored(self, render: Renderer, frames: Sequence[int], keep_renders: bool, scene: Scene | None = None,
+                **options: Any):
+        scores, renders = heldout_scores(render, scene or self.scene, frames, keep_renders, **options)
+        if scene is None or scene is self.scene:  # a cost measured at full size
+            self.seconds_per_view = scores["render_seconds_per_view"]
+        return scores, renders
+
+
+SMALLEST_FINAL_SIDE = 32
+"""The smallest side, in pixels, a final evaluation shrinks its views to (to fit a time budget)."""

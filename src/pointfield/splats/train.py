@@ -56,8 +56,8 @@ from pointfield.errors import PointfieldError
 from pointfield.fields.encodings.spherical_harmonics import sh_to_rgb
 from pointfield.metrics import psnr_from_mse
 from pointfield.scenes.heldout import (
+    HeldoutEvaluation,
     depth_range,
-    heldout_scores,
     open_scene_of,
     scene_config,
     training_and_heldout,
@@ -217,6 +217,7 @@ class SplatTask(Task):
         self.depth_distortion = float(config.get("depth_distortion") or 0.0)
         self.epochs = math.ceil(total / config["eval_every"])
         self.evaluated = self.heldout_frames[: max(1, config["eval_views"])]
+        self.heldout = HeldoutEvaluation(self.scene, self.heldout_frames, self.evaluated)
         self.identity = {"task": TASK, "sh_degree": gaussians.sh_degree}
         self.last_meta: dict[str, torch.Tensor] | None = None  # the previous step's, for densification
         self.last_size = self.sizes[0]  # and the (width, height) it was rendered at
@@ -293,7 +294,7 @@ class SplatTask(Task):
                              **self.mode)
 
     def evaluate(self, epoch: int) -> dict[str, float]:
-        scores, _ = heldout_scores(self.render, self.scene, self.evaluated)
+        scores, _ = self.heldout.during(self.render)
         return {"psnr": scores["psnr"], "opacity_error": scores["opacity_error"], "splats": len(self.model)}
 
     def draw(self, run: RunDirectory, history: list[dict[str, Any]]) -> None:
@@ -302,10 +303,13 @@ class SplatTask(Task):
         plot_training_curves(records, run.path / CURVES_PNG, title="Gaussian splats", x="step")
 
     def finish(self, run: RunDirectory, state: TrainingState) -> dict[str, Any]:
-        scores, renders = heldout_scores(self.render, self.scene, self.heldout_frames, keep_renders=True)
+        scores, renders = self.heldout.final(self.render, self.time_budget, self.progress)
         near, far = depth_range(self.scene, [view for _, view, _ in renders])
         save_panels(run.path / HELDOUT_DIR, renders, near, far)
         return {**scores, "splats": len(self.model), "steps": state.step}
+
+    def finishing_seconds(self) -> float | None:
+        return self.heldout.final_seconds()
 
 
 def train(
@@ -314,6 +318,7 @@ def train(
     out: str | os.PathLike[str] = "runs/splat",
     steps: int | None = None,
     max_time: float | None = None,
+    max_training_time: float | None = None,
     downscale: int = 1,
     holdout_every: int | None = None,
     background: str | None = None,
@@ -337,12 +342,16 @@ def train(
 ) -> dict[str, Any]:
     """Train splats on ``scene`` (the synthetic cube when None) into run folder ``out``.
 
-    ``steps`` defaults to 3000; ``max_time`` stops earlier (seconds, summed over resumed
-    sessions). Every ``eval_every`` steps (default 250) the first ``eval_views`` held-out
-    views are scored. ``max_splats`` (default 200,000) caps densification (a message says when
-    it bites). ``alpha_loss``: weight of the mean absolute difference between rendered opacity
-    and the images' alpha, added to the loss where the images have alpha (default 0.1; 0 turns
-    it off). ``opacity_entropy``, ``flatness`` and ``depth_distortion``: weights of the
+    ``steps`` defaults to 3000; ``max_time``: the call returns within that many seconds of
+    wall clock, start-up and the final evaluation included (which scores as many held-out views
+    as fit, ``views`` of ``heldout_views``); ``max_training_time`` stops after that many seconds
+    of training instead (evaluation excluded, summed over resumed sessions), then scores every
+    held-out view: what benchmarks at equal training time use. Every ``eval_every`` steps
+    (default 250) the first ``eval_views`` held-out views are scored. ``max_splats`` (default
+    200,000) caps densification (a message says when it bites). ``alpha_loss``: weight of the
+    mean absolute difference between rendered opacity and the images' alpha, added to the loss
+    where the images have alpha (default 0.1; 0 turns it off). ``opacity_entropy``, ``flatness``
+    and ``depth_distortion``: weights of the
     geometry terms of :mod:`pointfield.splats.loss` (default off; ``GEOMETRY_WEIGHTS`` there are
     the ones measured). ``antialiased``: train (and render) in the rasterizer's antialiased mode;
     ``screen_dilation``: the variance in px^2 added to every splat's screen footprint (default
@@ -359,4 +368,4 @@ def train(
         "eval_every": eval_every, "eval_views": eval_views, "cube_views": cube_views, "cube_size": cube_size,
     }
     return lifecycle.train(SplatTask, settings, out=out, resume=resume, device=device, max_time=max_time,
-                           progress=progress)
+                           max_training_time=max_training_time, progress=progress)

@@ -10,10 +10,15 @@
    written; the task warms up off the clock;
 4. :func:`~pointfield.training.fit` trains, checkpointing atomically, resuming where a killed
    run stopped;
-5. the task's final metrics go to ``metrics.json``, with the clock's figures, the same for
-   every task: ``seconds`` (wall clock, evaluation included), ``training_seconds`` (evaluation
-   excluded) and ``startup_seconds`` (this session's time from the call to the first step:
-   data, model, kernel compilation, which neither clock counts).
+5. the task's final metrics go to ``metrics.json`` (strict JSON: NaN is written as null),
+   with the clock's figures, the same for every task: ``seconds`` (wall clock, evaluation
+   included), ``training_seconds`` (evaluation excluded), ``startup_seconds`` (this session's
+   time from the call to the first step: data, model, kernel compilation, which neither clock
+   counts) and ``wall_seconds`` (this session's whole call, up to writing ``metrics.json``).
+
+``max_time`` is the wall clock of the whole call, start-up and final evaluation included
+(:mod:`~pointfield.training.budget`); ``max_training_time`` the training clock alone, for
+benchmarks that compare runs at equal training time.
 
 Under ``torchrun`` every process runs the same lifecycle; only rank 0 writes.
 
@@ -35,6 +40,7 @@ from torch import nn
 from pointfield.devices import pick_device
 from pointfield.errors import PointfieldError
 from pointfield.training import distributed as processes
+from pointfield.training.budget import TimeBudget
 from pointfield.training.checkpoints import load_checkpoint, restore
 from pointfield.training.loop import fit
 from pointfield.training.run import Run, RunDirectory
@@ -50,6 +56,7 @@ def train(
     resume: bool = False,
     device: str | None = None,
     max_time: float | None = None,
+    max_training_time: float | None = None,
     checkpoint_seconds: float | None = 300.0,
     progress: bool = True,
 ) -> dict[str, Any]:
@@ -57,11 +64,17 @@ def train(
 
     ``settings`` are the task's own (see its ``configure``); a setting given as None means
     "the default", or, when resuming, "as the run had it". ``options`` go to the task's
-    constructor and are not part of the run's record (data-loading workers, say). ``max_time`` stops training after
-    that many seconds, summed over resumed sessions. Launched by ``torchrun`` with several
+    constructor and are not part of the run's record (data-loading workers, say). ``max_time``:
+    the call returns within that many seconds of wall clock, with its final evaluation scaled to
+    fit (module doc). ``max_training_time``: stop training after that many seconds of it
+    (evaluation excluded), summed over resumed sessions. Launched by ``torchrun`` with several
     processes, this trains with DistributedDataParallel.
     """
     started = time.perf_counter()
+    try:
+        budget = TimeBudget(max_time, started)
+    except ValueError as error:
+        raise PointfieldError(f"max_time: {error}") from None
     distributed, torch_device = processes.setup(device)
     is_main = distributed is None or distributed.is_main
     try:
@@ -77,6 +90,7 @@ def train(
             config = {**saved, **given}
         torch.manual_seed(config["seed"])
         task = task_class(config, torch_device, distributed, progress and is_main, **(options or {}))
+        task.time_budget = budget
         if is_main:
             run.create(resume)  # only now: a bad scene or option leaves an existing folder untouched
             run.write_config(task.config)
@@ -92,7 +106,8 @@ def train(
             task.trained, task.optimizer, step, task.batches, task.epochs, run=run,
             identity=task.identity, scheduler=task.scheduler, evaluate=task.evaluate,
             on_epoch_end=lambda history: task.draw(run, history), loss_aliases=task.loss_aliases,
-            resume=resume, checkpoint_seconds=checkpoint_seconds, max_seconds=max_time,
+            resume=resume, checkpoint_seconds=checkpoint_seconds, max_training_seconds=max_training_time,
+            budget=budget, finishing=task.finishing_seconds,
             distributed=distributed, device=torch_device, progress=task.progress,
         )
         metrics = {
@@ -100,6 +115,7 @@ def train(
             "seconds": round(state.seconds, 3),
             "training_seconds": round(state.training_seconds, 3),
             "startup_seconds": round(startup_seconds, 3),
+            "wall_seconds": round(budget.elapsed(), 3),
         }
         if is_main:
             run.write_final_metrics(metrics)

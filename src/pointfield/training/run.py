@@ -4,19 +4,24 @@
 
     RUN/
       config.json          what was trained on what, with which settings (written first)
-      metrics.jsonl        one JSON object per finished epoch
+      metrics.jsonl        one JSON object per finished epoch (and one for an epoch cut short)
       metrics.json         the final scores
       checkpoints/last.pt  the latest checkpoint (atomic; --resume continues from it)
       *.png                pictures the task draws: training curves, confusion matrix, ...
 
 Every file is replaced atomically, so a run killed at any moment leaves each file either as it
-was or as it was meant to be, never half-written.
+was or as it was meant to be, never half-written. The JSON files are strict JSON, which every
+parser reads (JavaScript's too): a number that is not finite -- a score that does not exist,
+such as the opacity error of images without alpha, or SSIM of views under 11 pixels -- is
+written as ``null`` (:func:`to_json`).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
+import warnings
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -45,8 +50,8 @@ class RunDirectory:
         """
         if not resume and (self.config.exists() or self.checkpoint.exists()):
             raise PointfieldError(
-                f"{self.path} already holds a run: pass --resume to continue it, or choose "
-                f"another --out"
+                f"{self.path} already holds a run: pass resume=True to continue it, or choose another out",
+                command_line=f"{self.path} already holds a run: pass --resume to continue it, or choose another --out",
             )
         if self.path.exists() and not self.path.is_dir():
             raise PointfieldError(f"{self.path} exists and is not a folder")
@@ -68,7 +73,7 @@ class RunDirectory:
 
     def write_metrics_log(self, records: list[dict[str, Any]]) -> None:
         """Rewrite ``metrics.jsonl`` whole: one line per record (cheap, and never torn)."""
-        lines = "".join(json.dumps(record) + "\n" for record in records)
+        lines = "".join(to_json(record) + "\n" for record in records)
         with atomic_path(self.metrics_log) as tmp:
             tmp.write_text(lines, encoding="utf-8")
 
@@ -81,9 +86,29 @@ class RunDirectory:
         write_json(self.final_metrics, metrics)
 
 
+def to_json(data: Any, indent: int | None = None) -> str:
+    """``data`` as strict JSON: NaN and infinities (a score that does not exist) become ``null``.
+
+    >>> to_json({"psnr": 21.5, "opacity_error": float("nan"), "views": [1.0, float("inf")]})
+    '{"psnr": 21.5, "opacity_error": null, "views": [1.0, null]}'
+    """
+    return json.dumps(_finite_or_none(data), indent=indent, allow_nan=False)
+
+
+def _finite_or_none(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: _finite_or_none(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_none(item) for item in value]
+    return value
+
+
 def write_json(path: Path, data: Any) -> None:
+    """``data`` as strict, indented JSON (:func:`to_json`), written atomically."""
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+        tmp.write_text(to_json(data, indent=2) + "\n", encoding="utf-8")
 
 
 def read_json(path: Path) -> Any:
@@ -132,6 +157,21 @@ class Run:
     def metrics(self) -> dict[str, Any]:
         final = self.directory.final_metrics
         return read_json(final) if final.is_file() else {}
+
+    @property
+    def finished(self) -> bool:
+        """Whether training ran to its end and wrote ``metrics.json``: not a run interrupted or still running."""
+        return self.directory.final_metrics.is_file()
+
+    def warn_if_unfinished(self, use: str) -> None:
+        """A warning that ``use`` ("predictions come from") the last checkpoint of an unfinished run."""
+        if self.finished:
+            return
+        whole = [record for record in self.history if not record.get("partial")]
+        done = f"epoch {whole[-1]['epoch']}" if whole else "no whole epoch"
+        planned = f" of {self.config['epochs']}" if "epochs" in self.config else ""
+        warnings.warn(f"{self.path} is an unfinished run (it stopped after {done}{planned} and has no "
+                      f"metrics.json): {use} its last checkpoint; resume the run to finish training", stacklevel=3)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({str(self.path)!r}, task={self.task!r}, model={self.model_name!r}, device={self.device})"

@@ -13,7 +13,11 @@ the loss of a batch                :meth:`Task.step` -> :class:`Step`
 held-out scores after an epoch     :meth:`Task.evaluate`
 pictures of the history            :meth:`Task.draw`
 the final metrics                  :meth:`Task.finish`
+what finishing will cost           :meth:`Task.finishing_seconds` (kept for it from ``max_time``)
 =================================  ==============================================================
+
+The lifecycle sets ``time_budget`` (:class:`~pointfield.training.budget.TimeBudget`, the call's
+``max_time``) before training; a task's :meth:`Task.finish` fits its final evaluation into it.
 
 A step returns its loss and, separately and by name, any auxiliary losses (PointNet's
 orthogonality regulariser, the proposal networks' interlevel loss): the loop adds them to the
@@ -29,6 +33,7 @@ from typing import Any, ClassVar
 import torch
 from torch import nn
 
+from pointfield.training.budget import TimeBudget
 from pointfield.training.distributed import Distributed
 from pointfield.training.loop import TrainingState
 from pointfield.training.run import RunDirectory
@@ -81,6 +86,7 @@ class Task:
     scheduler: Any = None
     epochs: int
     identity: dict[str, Any]
+    time_budget: TimeBudget = TimeBudget()
 
     def __init__(
         self, config: dict[str, Any], device: torch.device, distributed: Distributed | None, progress: bool
@@ -116,3 +122,7 @@ class Task:
     def finish(self, run: RunDirectory, state: TrainingState) -> dict[str, Any]:
         """The task's final metrics and any final pictures; the lifecycle adds the clock's figures."""
         raise NotImplementedError
+
+    def finishing_seconds(self) -> float | None:
+        """Estimated seconds of :meth:`finish` at its full size (None: not known yet; 0 by default)."""
+        return 0.0
