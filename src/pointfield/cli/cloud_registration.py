@@ -1,6 +1,6 @@
 """``pointfield cloud register``: the rigid motion that maps one scan onto another.
 
-A thin layer over :func:`pointfield.registration.register`; ``--out`` writes the source moved
+A thin layer over :func:`pointfield.registration.pairwise.register`; ``--out`` writes the source moved
 by it through :func:`pointfield.write`, every field kept and normals rotated
 (:func:`pointfield.registration.aligned`).
 """

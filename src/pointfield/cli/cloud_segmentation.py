@@ -2,11 +2,11 @@
 
 Each is a thin layer over a function of :mod:`pointfield.segmentation`:
 
-============================  =====================================================  ==================
-``pointfield cloud planes``   :func:`pointfield.segmentation.segment_planes`          field ``plane``
-``pointfield cloud clusters`` :func:`pointfield.segmentation.dbscan`                  field ``cluster``
-``pointfield cloud ground``   :func:`pointfield.segmentation.ground_mask` (CSF)       ``classification``
-============================  =====================================================  ==================
+=============================  =====================================================  ==================
+``pointfield cloud planes``    :func:`pointfield.segmentation.segment_planes`          field ``plane``
+``pointfield cloud clusters``  :func:`pointfield.segmentation.dbscan`                  field ``cluster``
+``pointfield cloud ground``    :func:`pointfield.segmentation.ground_mask` (CSF)       ``classification``
+=============================  =====================================================  ==================
 
 Labels are int32 with -1 for none (planes, clusters) and LAS classes for ground (2 ground, the
 file's own class elsewhere), so every format that holds the field keeps them.

@@ -415,7 +415,7 @@ def room_scene(seed: int = 0, density: float = 1.0) -> LabelledScene:
 
 
 def street_primitives(rng: np.random.Generator) -> tuple[list[Primitive], float]:
-    """A straight street along x: ``(primitives, length)``; the road is |y| < 5 m, pavements to 8 m."""
+    """A straight street along x: ``(primitives, length)``; the road is ``|y| < 5`` m, pavements to 8 m."""
     length = rng.uniform(50.0, 70.0)
     ground, building, tree, car, pole = range(5)
     primitives: list[Primitive] = [Box(ground, _shade(rng, (90, 90, 95), 10), 0.2, (-20, -40, -0.2),

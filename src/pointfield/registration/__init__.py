@@ -3,7 +3,7 @@
 One file per piece, as open3d's ``pipelines.registration`` names them:
 
 =============================  ============================================================
-``register.py``                :func:`register`, the entry point: checks, voxel, method choice
+``pairwise.py``                :func:`register`, the entry point: checks, voxel, method choice
 ``icp.py``                     :func:`registration_icp` (numpy reference), small_gicp fast path,
                                :func:`multiscale_icp` (coarse to fine)
 ``estimation.py``              :class:`PointToPoint`, :class:`PointToPlane`,
@@ -32,13 +32,13 @@ from pointfield.registration.icp import (
     registration_small_gicp,
 )
 from pointfield.registration.kernels import HuberLoss, L2Loss, TukeyLoss
-from pointfield.registration.register import (
+from pointfield.registration.pairwise import (
     METHODS,
     aligned,
     check_cloud,
     check_transformation,
     default_voxel,
-    global_registration,
+    feature_alignment,
     register,
 )
 from pointfield.registration.result import RegistrationResult, evaluate, information_matrix
@@ -48,6 +48,6 @@ __all__ = [
     "METHODS", "ColoredICP", "DistanceChecker", "EdgeLengthChecker", "GeneralizedICP", "HuberLoss",
     "ICPConvergenceCriteria", "L2Loss", "PointToPlane", "PointToPoint", "RANSACCriteria", "RegistrationResult",
     "Scan", "TukeyLoss", "aligned", "check_cloud", "check_transformation", "compute_fpfh", "default_voxel",
-    "evaluate", "global_registration", "information_matrix", "kabsch", "match_features", "multiscale_icp",
+    "evaluate", "feature_alignment", "information_matrix", "kabsch", "match_features", "multiscale_icp",
     "ransac_on_matches", "register", "registration_icp", "registration_small_gicp",
 ]

@@ -8,7 +8,7 @@ registration.icp.registration_icp` alternates that with finding correspondences.
 ``xi = [omega, t]`` applied on the left (``p -> p + omega x p + t``):
 
 ==========================  =====================================================  ==========================
-``PointToPoint``            ``sum w |R p + t - q|^2``, solved in closed form      Besl & McKay 1992; Umeyama
+``PointToPoint``            ``sum w |R p + t - q|^2``, solved in closed form       Besl & McKay 1992; Umeyama
 ``PointToPlane``            ``sum w ((p - q) . n)^2``, one Gauss-Newton step       Chen & Medioni 1992
 ``GeneralizedICP``          ``sum d^T (C_q + R C_p R^T)^-1 d``, ``d = p - q``      Segal, Haehnel, Thrun 2009
 ``ColoredICP``              ``lambda r_G^2 + (1 - lambda) r_C^2``                  Park, Zhou, Koltun 2017
@@ -60,7 +60,7 @@ class PointToPoint:
 
 @dataclass(frozen=True)
 class PointToPlane:
-    """Point-to-plane ICP: residual ``r = (p - q) . n``, Jacobian ``[(p x n)^T, n^T]``; needs target normals."""
+    """Point-to-plane ICP: residual ``r = n^T (p - q)``, Jacobian ``[(p x n)^T, n^T]``; needs target normals."""
 
     kernel: Kernel = field(default_factory=L2Loss)
     name = "point-to-plane ICP"

@@ -1,15 +1,15 @@
 """Volumes: voxel grids and signed distance fields, the lesson's other explicit and implicit representations.
 
-=================================  =====================================================
-:class:`VoxelGrid`                 sparse occupied voxels with per-voxel fields (voxels.py)
-:func:`voxelize_cloud` / ``_mesh`` a grid from points, or a mesh's surface or solid
-:func:`read_voxels` / ``write``    ``.binvox``, MagicaVoxel ``.vox``, ``.npz`` (files.py)
-:class:`SDFGrid`                   signed distances on a grid: trilinear queries, gradients, marching cubes (sdf.py)
-:func:`mesh_to_sdf`                a mesh's SDF, signed by the generalized winding number
-:class:`OccupancyMap`              occupied / free / unknown from scans by ray casting, as OctoMap (occupancy.py)
-:func:`poisson_surface`            points with normals to a watertight mesh (Poisson, FFT on a grid; poisson.py)
-winding numbers, distances         of a triangle soup, clustered as Barill et al. (triangles.py)
-=================================  =====================================================
+===================================  =====================================================
+:class:`VoxelGrid`                   sparse occupied voxels with per-voxel fields (voxels.py)
+:func:`voxelize_cloud` / ``_mesh``   a grid from points, or a mesh's surface or solid
+:func:`read_voxels` / ``write``      ``.binvox``, MagicaVoxel ``.vox``, ``.npz`` (files.py)
+:class:`SDFGrid`                     signed distances on a grid: trilinear queries, gradients, marching cubes (sdf.py)
+:func:`mesh_to_sdf`                  a mesh's SDF, signed by the generalized winding number
+:class:`OccupancyMap`                occupied / free / unknown from scans by ray casting, as OctoMap (occupancy.py)
+:func:`poisson_surface`              points with normals to a watertight mesh (Poisson, FFT on a grid; poisson.py)
+winding numbers, distances           of a triangle soup, clustered as Barill et al. (triangles.py)
+===================================  =====================================================
 """
 
 from pointfield.volumes.files import read_voxels, write_voxels

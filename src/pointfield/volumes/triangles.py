@@ -5,12 +5,12 @@ numbers for soups and clouds") do: triangles are grouped into clusters (by the v
 falls in, :class:`TriangleClusters`), each with a bounding sphere; a query treats a cluster near it
 triangle by triangle and a cluster far from it as a whole.
 
-Generalized winding number (Jacobson et al. 2013) of the oriented triangles at a point q:
+Generalized winding number (Jacobson et al. 2013) of the oriented triangles at a point q::
 
     w(q) = 1/(4 pi) * sum_t Omega_t(q)
 
 where Omega_t is the signed solid angle triangle t subtends at q (van Oosterom and Strackee 1983),
-with a, b, c its corners minus q:
+with a, b, c its corners minus q::
 
     tan(Omega / 2) = a . (b x c) / (|a||b||c| + (a . b)|c| + (b . c)|a| + (c . a)|b|)
 
@@ -18,7 +18,7 @@ For a closed mesh with outward normals (counter-clockwise seen from outside) w i
 outside; for a mesh with holes it moves smoothly between them, which is why ``w > 1/2`` is a sign
 that survives a mesh that is not quite closed. A cluster whose sphere (centre p, radius r) is at
 least ``BETA * r`` from q contributes its dipole term instead, the first term of Barill's
-expansion:
+expansion::
 
     w_cluster(q) ~= A . (p - q) / (4 pi |p - q|^3),   A = sum_t area_t n_t (the area vector)
 

@@ -149,8 +149,8 @@ def choose_estimation(method: str, source: Scan, target: Scan, kernel: str | Non
                                     f"every direction (normal spread {spread:.3f} >= {FLAT})")
 
 
-def global_registration(source: Scan, target: Scan, voxel: float, seed: int = 0,
-                        criteria: RANSACCriteria | None = None) -> tuple[np.ndarray, int]:
+def feature_alignment(source: Scan, target: Scan, voxel: float, seed: int = 0,
+                      criteria: RANSACCriteria | None = None) -> tuple[np.ndarray, int]:
     """``(transformation, inlier matches)`` from FPFH features and RANSAC on scans thinned to ``voxel``."""
     # Normals estimated afresh in both, with one orientation rule: a carried normal may follow
     # another convention than the other scan's, and FPFH changes with the normals' signs.
@@ -198,7 +198,7 @@ def register(source: PointCloud | np.ndarray, target: PointCloud | np.ndarray, m
     if run_global:
         if init is not None:
             notes.append("global registration ignores the given init")
-        init, inliers = global_registration(src, tgt, GLOBAL_SCALE * voxel, seed)
+        init, inliers = feature_alignment(src, tgt, GLOBAL_SCALE * voxel, seed)
         coarse = GLOBAL_SCALE * voxel
         notes.append(f"global: FPFH (radius {FEATURE_RADIUS * coarse:.4g}) on the scans thinned to {coarse:.4g}, "
                      f"RANSAC ({inliers} inlier matches within {RANSAC_DISTANCE * coarse:.4g})"
@@ -226,4 +226,4 @@ def aligned(cloud: PointCloud, transformation: np.ndarray) -> PointCloud:
 
 
 __all__ = ["METHODS", "aligned", "check_cloud", "check_transformation", "choose_estimation", "default_voxel",
-           "global_registration", "register"]
+           "feature_alignment", "register"]
