@@ -66,6 +66,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                        help="random splats to start from when the scene has no sparse points (default 20,000)")
     train.add_argument("--init", choices=("auto", "points", "random"), default="auto",
                        help="start from the scene's sparse points (auto: when it has them) or at random")
+    train.add_argument("--strategy", choices=("default", "mcmc"), default="default",
+                       help="densification: default (3DGS: clone, split, prune) or mcmc (3DGS-MCMC: relocate "
+                            "dead splats, grow to --max-splats; robust to a random start)")
     train.add_argument("--eval-every", type=int, metavar="STEPS", help="score held-out views every STEPS steps (default 250)")
     train.add_argument("--device", help=DEVICE_HELP)
     train.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -126,7 +129,7 @@ def run_train(args: argparse.Namespace) -> int:
             device=args.device,
             seed=args.seed,
             resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,
-            init=args.init, eval_every=args.eval_every, progress=args.progress,
+            init=args.init, strategy=args.strategy, eval_every=args.eval_every, progress=args.progress,
         )
         print(f"splat run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB, SSIM {metrics['ssim']:.4f}, "
               f"{opacity_error_text(metrics)}{metrics['splats']:,} splats ({metrics['steps']} steps, {metrics['seconds']:.0f} s); "

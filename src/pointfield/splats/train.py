@@ -30,7 +30,9 @@ training shrinks the object about a pixel to match. With Mip-Splatting's smaller
 (``screen_dilation=0.1`` px^2 instead of 3DGS's 0.3) it is drawn closer still (tiled with discs
 of 0.01: 3.8 % over its outline, against 6.2 % at 0.3). The run records both, and everything
 that renders the run uses them.
-:class:`~pointfield.splats.densification.DefaultStrategy` grows and prunes the splats from step 500 to half the run, never beyond ``max_splats``.
+:class:`~pointfield.splats.densification.DefaultStrategy` grows and prunes the splats from step 500 to half the run, never beyond ``max_splats``;
+``strategy="mcmc"`` chooses :class:`~pointfield.splats.densification.MCMCStrategy` instead
+(3DGS-MCMC: relocation of dead splats, a hard cap, its opacity and scale regularisers).
 
 :class:`SplatTask` is this recipe as the one training lifecycle (:mod:`pointfield.training`)
 runs it: checkpoints, resuming, time limit, progress and NaN checks come from there, and its
@@ -64,7 +66,7 @@ from pointfield.scenes.heldout import (
 )
 from pointfield.scenes.paths import scene_centre_and_up
 from pointfield.scenes.scene import Scene
-from pointfield.splats.densification import DefaultStrategy
+from pointfield.splats.densification import STRATEGIES, make_strategy
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
 from pointfield.splats.loss import (
     depth_distortion,
@@ -169,11 +171,14 @@ class SplatTask(Task):
             "screen_dilation": float(SCREEN_DILATION if settings.get("screen_dilation") is None
                                      else settings["screen_dilation"]),
             "depth_distortion": settings.get("depth_distortion"),
+            "strategy": settings.get("strategy") or "default",
         }
         if min(config["steps"], config["max_splats"], config["initial_splats"], config["eval_every"]) < 1:
             raise PointfieldError("--steps, --max-splats and --eval-every must be positive")
         if not (math.isfinite(config["screen_dilation"]) and config["screen_dilation"] > 0):
             raise PointfieldError(f"--screen-dilation must be a positive number of px^2, got {config['screen_dilation']}")
+        if config["strategy"] not in STRATEGIES:
+            raise PointfieldError(f"--strategy must be one of {', '.join(STRATEGIES)}, got {config['strategy']!r}")
         if config["init"] not in INITS:
             raise PointfieldError(f"--init must be one of {', '.join(INITS)}, got {config['init']!r}")
         return config
@@ -196,11 +201,8 @@ class SplatTask(Task):
         )
         self.means_learning_rate = LEARNING_RATES["means"] * extent
         total = config["steps"]
-        self.strategy = DefaultStrategy(
-            scene_scale=extent, max_splats=config["max_splats"], seed=config["seed"],
-            refine_start=min(500, total // 10), refine_stop=max(total // 2, 1),
-            sh_degree_interval=max(min(1000, total // 4), 1),
-        )
+        self.strategy = make_strategy(config.get("strategy", "default"), scene_scale=extent,
+                                      max_splats=config["max_splats"], seed=config["seed"], steps=total)
         # Each view renders at its own size: a posed photo set may hold several (one camera per size).
         self.sizes = [(int(w), int(h)) for w, h in zip(self.scene.cameras.width, self.scene.cameras.height)]
         self.viewmats, self.Ks = camera_matrices(self.scene.cameras, device)
@@ -264,7 +266,7 @@ class SplatTask(Task):
         self.last_meta, self.last_size = meta, self.sizes[view]
         target = self.images[view]
         mse = float(torch.mean((rendered.detach().clamp(0, 1) - target) ** 2))
-        loss = splat_loss(rendered, target)
+        loss = splat_loss(rendered, target) + self.strategy.regularization(gaussians)
         if self.alpha_loss:
             loss = loss + self.alpha_loss * (alphas[0] - self.alphas[view]).abs().mean()
         if self.opacity_entropy:
@@ -329,6 +331,7 @@ def train(
     max_splats: int | None = None,
     initial_splats: int = DEFAULT_INITIAL_SPLATS,
     init: str = "auto",
+    strategy: str = "default",
     eval_every: int | None = None,
     eval_views: int = 3,
     progress: bool = True,
@@ -347,7 +350,9 @@ def train(
     the ones measured). ``antialiased``: train (and render) in the rasterizer's antialiased mode;
     ``screen_dilation``: the variance in px^2 added to every splat's screen footprint (default
     0.3, :data:`~pointfield.splats.rasterizer.SCREEN_DILATION`; Mip-Splatting's filter is 0.1).
-    Resuming, only ``steps`` and ``max_splats`` may change. Returns the final metrics
+    ``strategy``: how splats are added and removed, "default" (3DGS's cloning, splitting and
+    pruning) or "mcmc" (3DGS-MCMC: dead splats relocated, the count grown to ``max_splats``), see
+    :mod:`pointfield.splats.densification`. Resuming, only ``steps`` and ``max_splats`` may change. Returns the final metrics
     (also in ``out/metrics.json``).
     """
     settings = {
@@ -355,7 +360,7 @@ def train(
         "background": background, "alpha_loss": alpha_loss, "opacity_entropy": opacity_entropy,
         "flatness": flatness, "antialiased": antialiased,
         "screen_dilation": screen_dilation, "depth_distortion": depth_distortion, "seed": seed,
-        "max_splats": max_splats, "initial_splats": initial_splats, "init": init,
+        "max_splats": max_splats, "initial_splats": initial_splats, "init": init, "strategy": strategy,
         "eval_every": eval_every, "eval_views": eval_views, "cube_views": cube_views, "cube_size": cube_size,
     }
     return lifecycle.train(SplatTask, settings, out=out, resume=resume, device=device, max_time=max_time,
