@@ -74,6 +74,7 @@ from pointfield.splats.loss import (
     opacity_entropy,
     splat_loss,
 )
+from pointfield.splats.mip import MIP_DILATION, REFRESH_EVERY, drawn, training_smoothing
 from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization, rasterizer_mode
 from pointfield.splats.run import (
     TASK,
@@ -167,9 +168,12 @@ class SplatTask(Task):
             "alpha_loss": settings.get("alpha_loss"),
             "opacity_entropy": settings.get("opacity_entropy"),
             "flatness": settings.get("flatness"),
-            "antialiased": bool(settings.get("antialiased")),
-            "screen_dilation": float(SCREEN_DILATION if settings.get("screen_dilation") is None
-                                     else settings["screen_dilation"]),
+            # Mip-Splatting's filters: the 3D one (pointfield.splats.mip) and, as its 2D one, the
+            # antialiased mode with a 0.1 px^2 dilation unless another dilation is asked for.
+            "mip": bool(settings.get("mip")),
+            "antialiased": bool(settings.get("antialiased") or settings.get("mip")),
+            "screen_dilation": float(settings["screen_dilation"] if settings.get("screen_dilation") is not None
+                                     else MIP_DILATION if settings.get("mip") else SCREEN_DILATION),
             "depth_distortion": settings.get("depth_distortion"),
             "strategy": settings.get("strategy") or "default",
         }
@@ -254,6 +258,9 @@ class SplatTask(Task):
         self.optimizer.param_groups[0]["lr"] = (
             self.means_learning_rate * FINAL_MEANS_LEARNING_RATE_FRACTION ** (done / self.config["steps"])
         )
+        if self.config.get("mip") and (done % REFRESH_EVERY == 0 or gaussians.smoothing is None
+                                       or len(gaussians.smoothing) != len(gaussians)):
+            self._refresh_smoothing()
         distortion_wanted = self.depth_distortion and done >= DEPTH_DISTORTION_FROM
         if distortion_wanted:
             colors, depths, alphas, meta = self._render_with_squared_depth(view)
@@ -279,6 +286,10 @@ class SplatTask(Task):
         return Step(loss,
                     {"psnr": psnr_from_mse(mse), "splats": float(len(gaussians))})
 
+    def _refresh_smoothing(self) -> None:
+        """Recompute Mip-Splatting's 3D filter from the training cameras (:mod:`pointfield.splats.mip`)."""
+        self.model.smoothing = training_smoothing(self.model, self.scene.cameras[self.train_frames])
+
     def _render_with_squared_depth(self, view: int):
         """Render training ``view`` with a fourth colour channel: each splat's squared camera z,
         composited (for the depth distortion)."""
@@ -290,7 +301,8 @@ class SplatTask(Task):
             (z * z)[:, None],
         ], dim=-1)
         background = torch.cat([self.background, self.background.new_zeros(1)])
-        return rasterization(gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities, features,
+        scales, opacities = drawn(gaussians)
+        return rasterization(gaussians.means, gaussians.quats, scales, opacities, features,
                              self.viewmats[[view]], self.Ks[[view]], *self.sizes[view], backgrounds=background,
                              **self.mode)
 
@@ -304,6 +316,8 @@ class SplatTask(Task):
         plot_training_curves(records, run.path / CURVES_PNG, title="Gaussian splats", x="step")
 
     def finish(self, run: RunDirectory, state: TrainingState) -> dict[str, Any]:
+        if self.config.get("mip"):
+            self._refresh_smoothing()  # for the final means, as a loaded run computes it
         scores, renders = heldout_scores(self.render, self.scene, self.heldout_frames, keep_renders=True)
         near, far = depth_range(self.scene, [view for _, view, _ in renders])
         save_panels(run.path / HELDOUT_DIR, renders, near, far)
@@ -324,6 +338,7 @@ def train(
     flatness: float | None = None,
     antialiased: bool = False,
     screen_dilation: float | None = None,
+    mip: bool = False,
     depth_distortion: float | None = None,
     device: str | None = None,
     seed: int = 0,
@@ -350,16 +365,19 @@ def train(
     the ones measured). ``antialiased``: train (and render) in the rasterizer's antialiased mode;
     ``screen_dilation``: the variance in px^2 added to every splat's screen footprint (default
     0.3, :data:`~pointfield.splats.rasterizer.SCREEN_DILATION`; Mip-Splatting's filter is 0.1).
-    ``strategy``: how splats are added and removed, "default" (3DGS's cloning, splitting and
-    pruning) or "mcmc" (3DGS-MCMC: dead splats relocated, the count grown to ``max_splats``), see
-    :mod:`pointfield.splats.densification`. Resuming, only ``steps`` and ``max_splats`` may change. Returns the final metrics
-    (also in ``out/metrics.json``).
+    ``mip``: Mip-Splatting's filters (:mod:`pointfield.splats.mip`): each splat's 3D smoothing
+    filter from the training cameras, and the antialiased mode with a 0.1 px^2 dilation as the 2D
+    mip filter, so that the splats hold up closer than they were trained. ``strategy``: how
+    splats are added and removed, "default" (3DGS's cloning, splitting and pruning) or "mcmc"
+    (3DGS-MCMC: dead splats relocated, the count grown to ``max_splats``), see
+    :mod:`pointfield.splats.densification`. Resuming, only ``steps`` and ``max_splats`` may
+    change. Returns the final metrics (also in ``out/metrics.json``).
     """
     settings = {
         "scene": scene, "steps": steps, "downscale": downscale, "holdout_every": holdout_every,
         "background": background, "alpha_loss": alpha_loss, "opacity_entropy": opacity_entropy,
         "flatness": flatness, "antialiased": antialiased,
-        "screen_dilation": screen_dilation, "depth_distortion": depth_distortion, "seed": seed,
+        "screen_dilation": screen_dilation, "mip": mip, "depth_distortion": depth_distortion, "seed": seed,
         "max_splats": max_splats, "initial_splats": initial_splats, "init": init, "strategy": strategy,
         "eval_every": eval_every, "eval_views": eval_views, "cube_views": cube_views, "cube_size": cube_size,
     }
