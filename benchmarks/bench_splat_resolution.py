@@ -15,6 +15,10 @@ gradients. What was found behind the GPU's failure (docs/splats.md): SSIM's floa
 run in TF32 on CUDA, which at 800 x 800 made the loss's SSIM gradient noise; a CPU never uses
 TF32, so this benchmark shows the fix only where a GPU runs it (``--device cuda``).
 
+Its ``precision`` part (seconds) shows the cause on any machine: the SSIM gradient of a lego view
+at each size with float32 convolutions in emulated TF32 against the exact one, for the SSIM of
+before the fix (float32 statistics) and today's.
+
 Run: ``make bench-splat-resolution`` (= ``python benchmarks/bench_splat_resolution.py``); at
 800 x 800 a step takes seconds on a CPU, so on a small machine give fewer ``--steps`` (the
 record says which were run). The record goes to ``benchmarks/records/splat-resolution.json``.
@@ -56,6 +60,75 @@ def write_scene(lego: Path, folder: Path, train_views: int, heldout_views: int) 
     return folder
 
 
+def _tf32(values: torch.Tensor) -> torch.Tensor:
+    """float32 rounded to TF32's 10-bit mantissa (to nearest), as tensor cores read it."""
+    bits = values.contiguous().view(torch.int32)
+    return ((bits + 0x1000) & ~0x1FFF).view(torch.float32)
+
+
+class _TF32Convolution(torch.autograd.Function):
+    """A float32 convolution as cuDNN runs one on CUDA by default: TF32 inputs, float32 sums."""
+
+    @staticmethod
+    def forward(ctx, image, weight, convolve):
+        ctx.save_for_backward(image, weight)
+        return convolve(_tf32(image), _tf32(weight))
+
+    @staticmethod
+    def backward(ctx, grad):
+        image, weight = ctx.saved_tensors
+        return torch.nn.grad.conv2d_input(image.shape, _tf32(weight), _tf32(grad)), None, None
+
+
+def ssim_precision(lego: Path, sizes: list[int]) -> list[list[str]]:
+    """The SSIM gradient of lego's first training view against a low-contrast copy of itself
+    (``0.7 x + 0.15``), exact and with float32 convolutions in emulated TF32, at each size: how
+    far the second is from the first, for the old SSIM (float32 statistics) and today's."""
+    import torch.nn.functional as F
+
+    from pointfield.metrics import _gaussian_window, ssim
+    from pointfield.scenes.heldout import open_scene
+
+    def old_ssim(x, y):  # the statistics in the inputs' dtype, as before issue 43
+        x, y = x.permute(2, 0, 1)[:, None], y.permute(2, 0, 1)[:, None]
+        window = _gaussian_window(x.dtype, x.device)
+
+        def local_mean(channels):
+            return F.conv2d(F.conv2d(channels, window[None, None, :, None]), window[None, None, None, :])
+
+        mu_x, mu_y = local_mean(x), local_mean(y)
+        var_x, var_y = local_mean(x * x) - mu_x**2, local_mean(y * y) - mu_y**2
+        cov_xy = local_mean(x * y) - mu_x * mu_y
+        c1, c2 = 0.01**2, 0.03**2
+        return ((2 * mu_x * mu_y + c1) * (2 * cov_xy + c2) / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))).mean()
+
+    convolve = F.conv2d
+
+    def tf32_convolution(image, weight):
+        return _TF32Convolution.apply(image, weight, convolve) if image.dtype == torch.float32 else convolve(image, weight)
+
+    rows = []
+    for size in sizes:
+        truth = torch.from_numpy(open_scene(lego, 800 // size, 10, "white").image(0))
+        row = [f"{size} x {size}"]
+        for function in (old_ssim, ssim):
+            gradients = []
+            for convolution in (convolve, tf32_convolution):
+                F.conv2d = convolution
+                try:
+                    image = (0.7 * truth + 0.15).requires_grad_()
+                    function(image, truth).backward()
+                finally:
+                    F.conv2d = convolve
+                gradients.append(image.grad)
+            exact, emulated = gradients
+            error = float((emulated - exact).norm() / exact.norm())
+            cosine = float(F.cosine_similarity(emulated.flatten(), exact.flatten(), dim=0))
+            row.append(f"{error:.3g} (cosine {cosine:.3f})")
+        rows.append(row)
+    return rows
+
+
 def train_at(scene: Path, size: int, args, out: Path) -> dict:
     """Train splats on ``scene`` at ``size`` px into ``out``: held-out PSNR and splats by step."""
     from pointfield.splats.train import train
@@ -79,6 +152,8 @@ def main() -> int:
     parser.add_argument("--scene", type=Path, default=LEGO, help=f"lego, Blender format (default {LEGO})")
     parser.add_argument("--out", type=Path, default=Path("bench-output/splat-resolution"))
     parser.add_argument("--sizes", type=int, nargs="+", default=list(SIZES), choices=SIZES)
+    parser.add_argument("--parts", nargs="+", choices=("precision", "training"), default=["precision", "training"],
+                        help="precision: SSIM's gradient under emulated TF32 at every size (seconds); training: the runs")
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--eval-every", type=int, default=100)
     parser.add_argument("--train-views", type=int, default=25)
@@ -102,6 +177,13 @@ def main() -> int:
               f"({args.seed}) and `--steps {args.steps}` (the recipe's schedule scaled to them) at every size; "
               f"held-out PSNR (mean of per-view PSNR) every {args.eval_every} steps. The claim: PSNR at the last "
               f"step at 800 px within {BAR_DB:g} dB of 100 px's.")
+    if "precision" in args.parts:
+        record.table(["size", "old SSIM (float32 statistics)", "SSIM today (float64 statistics)"],
+                     ssim_precision(args.scene, list(SIZES)),
+                     title="SSIM gradient with float32 convolutions in emulated TF32 (CUDA's default): relative "
+                           "error against the exact one")
+    if "training" not in args.parts:
+        return record.finish()
     results = {}
     for size in args.sizes:
         results[size] = train_at(scene, size, args, args.out / f"{size}px")
