@@ -181,9 +181,9 @@ def _smooth_object_on_white(size: int) -> torch.Tensor:
 
 def test_ssim_gradient_does_not_depend_on_tf32_convolutions(monkeypatch):
     # On CUDA, float32 convolutions run in TF32 unless told not to; SSIM's variances, E[x^2] -
-    # E[x]^2 over an 11 x 11 window, cancel badly then: at 800 x 800, where a window is smooth,
-    # the splat loss's SSIM gradient came out 47 times too large and random (cosine 0.02 with
-    # the true one) -- why splats did not learn at lego's full size on a GPU (docs/splats.md).
+    # E[x]^2 over an 11 x 11 window, cancel badly then: on a lego view at 800 x 800 the splat
+    # loss's SSIM gradient came out 47 times too large and random (cosine 0.02 with the true
+    # one) -- the likely reason splats did not learn at lego's full size on a GPU (docs/splats.md).
     truth = _smooth_object_on_white(800)
     image = (0.7 * truth + 0.15).requires_grad_()
     ssim(image, truth).backward()

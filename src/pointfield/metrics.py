@@ -186,9 +186,10 @@ def ssim(image: ArrayLike, truth: ArrayLike, data_range: float = 1.0) -> torch.T
     # pixels whose window is inside the image, which are the ones scikit-image averages.
     # The local statistics in float64 (float32 on MPS, which has none): the variances E[x^2] -
     # E[x]^2 cancel where a window is smooth, and on CUDA float32 convolutions run in TF32 (a
-    # 10-bit mantissa) by default, which at 800 x 800 made the splat loss's SSIM gradient 47
-    # times too large and random -- splats did not learn at lego's full size on a GPU
-    # (docs/splats.md). cuDNN never uses TF32 for float64. The result keeps the inputs' dtype.
+    # 10-bit mantissa) by default, which made the splat loss's SSIM gradient noise (emulated:
+    # off by 0.6 to 47 times its norm on lego views at 100 to 800 px) -- the likely reason
+    # splats did not learn at lego's full size on a GPU (docs/splats.md). cuDNN never uses TF32
+    # for float64. The result keeps the inputs' dtype.
     dtype = x.dtype
     work = torch.float32 if x.device.type == "mps" else torch.float64
     x = x.permute(2, 0, 1)[:, None].to(work)
