@@ -19,6 +19,10 @@ Its ``precision`` part (seconds) shows the cause on any machine: the SSIM gradie
 at each size with float32 convolutions in emulated TF32 against the exact one, for the SSIM of
 before the fix (float32 statistics) and today's.
 
+Its ``statistics`` part gives the densification statistic of the starting splats at each size,
+split by loss term: L1's is the same at every size, SSIM's (an 11 x 11 pixel window) falls as the
+size grows.
+
 Run: ``make bench-splat-resolution`` (= ``python benchmarks/bench_splat_resolution.py``); at
 800 x 800 a step takes seconds on a CPU, so on a small machine give fewer ``--steps`` (the
 record says which were run). The record goes to ``benchmarks/records/splat-resolution.json``.
@@ -129,6 +133,36 @@ def ssim_precision(lego: Path, sizes: list[int]) -> list[list[str]]:
     return rows
 
 
+def densification_statistics(lego: Path, sizes: list[int], threshold: float = 2e-4) -> list[list[str]]:
+    """The densification statistic of the recipe's starting splats on lego's view 1 at each size,
+    split by loss term: the mean screen-space gradient norm (normalised device coordinates, as
+    :class:`~pointfield.splats.densification.DefaultStrategy` gathers it) of the visible splats
+    under the L1 term (0.8 weight) and the SSIM term (0.2) alone, and the share above ``threshold``."""
+    from pointfield.metrics import ssim
+    from pointfield.scenes.heldout import open_scene
+    from pointfield.splats.run import camera_matrices, render_views
+    from pointfield.splats.train import DEFAULT_INITIAL_SPLATS, initial_gaussians
+
+    rows = []
+    for size in sizes:
+        scene = open_scene(lego, 800 // size, 10, "white")
+        gaussians = initial_gaussians(scene, DEFAULT_INITIAL_SPLATS, 0)
+        viewmats, Ks = camera_matrices(scene.cameras, torch.device("cpu"))
+        target = torch.from_numpy(scene.image(1))
+        row = [f"{size} x {size}"]
+        for term in ("l1", "ssim"):
+            gaussians.zero_grad(set_to_none=True)
+            colors, _, _, meta = render_views(gaussians, viewmats[[1]], Ks[[1]], size, size, torch.ones(3))
+            meta["means2d"].retain_grad()
+            loss = 0.8 * (colors[0] - target).abs().mean() if term == "l1" else 0.2 * (1 - ssim(colors[0], target))
+            loss.backward()
+            visible = meta["radii"][0] > 0
+            norms = (meta["means2d"].grad[0] * torch.tensor([size / 2, size / 2])).norm(dim=-1)[visible]
+            row.append(f"{float(norms.mean()):.3g} ({100 * float((norms > threshold).float().mean()):.1f} %)")
+        rows.append(row)
+    return rows
+
+
 def train_at(scene: Path, size: int, args, out: Path) -> dict:
     """Train splats on ``scene`` at ``size`` px into ``out``: held-out PSNR and splats by step."""
     from pointfield.splats.train import train
@@ -152,8 +186,10 @@ def main() -> int:
     parser.add_argument("--scene", type=Path, default=LEGO, help=f"lego, Blender format (default {LEGO})")
     parser.add_argument("--out", type=Path, default=Path("bench-output/splat-resolution"))
     parser.add_argument("--sizes", type=int, nargs="+", default=list(SIZES), choices=SIZES)
-    parser.add_argument("--parts", nargs="+", choices=("precision", "training"), default=["precision", "training"],
-                        help="precision: SSIM's gradient under emulated TF32 at every size (seconds); training: the runs")
+    parser.add_argument("--parts", nargs="+", choices=("precision", "statistics", "training"),
+                        default=["precision", "statistics", "training"],
+                        help="precision: SSIM's gradient under emulated TF32 at every size (seconds); statistics: the "
+                             "densification statistic by loss term at --sizes (minutes at 800 px); training: the runs")
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--eval-every", type=int, default=100)
     parser.add_argument("--train-views", type=int, default=25)
@@ -182,6 +218,10 @@ def main() -> int:
                      ssim_precision(args.scene, list(SIZES)),
                      title="SSIM gradient with float32 convolutions in emulated TF32 (CUDA's default): relative "
                            "error against the exact one")
+    if "statistics" in args.parts:
+        record.table(["size", "L1 term: mean (share > 2e-4)", "SSIM term: mean (share > 2e-4)"],
+                     densification_statistics(args.scene, args.sizes),
+                     title="Densification statistic of the 20,000 starting splats on view 1, by loss term")
     if "training" not in args.parts:
         return record.finish()
     results = {}
