@@ -189,7 +189,8 @@ def main() -> int:
     parser.add_argument("--parts", nargs="+", choices=("precision", "statistics", "training"),
                         default=["precision", "statistics", "training"],
                         help="precision: SSIM's gradient under emulated TF32 at every size (seconds); statistics: the "
-                             "densification statistic by loss term at --sizes (minutes at 800 px); training: the runs")
+                             "densification statistic by loss term at --sizes (at 800 px minutes, and about 21 GB on "
+                             "a CPU); training: the runs")
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--eval-every", type=int, default=100)
     parser.add_argument("--train-views", type=int, default=25)
