@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy bench-scenes clean
+.PHONY: demo test lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -52,7 +52,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy bench-scenes
+bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -84,6 +84,10 @@ bench-splat: $(BIN)/.installed
 
 bench-splat-render: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_splat_render.py
+
+# Splats on lego at 100, 200, 400 and 800 px, the same views and steps: PSNR by step (issue 43).
+bench-splat-resolution: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_splat_resolution.py
 
 bench-hashgrid: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_hashgrid.py

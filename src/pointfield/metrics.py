@@ -166,7 +166,9 @@ def ssim(image: ArrayLike, truth: ArrayLike, data_range: float = 1.0) -> torch.T
     ``image`` and ``truth``: ``(H, W)`` or ``(H, W, C)`` with H, W >= 11, numpy or torch. Tensors
     keep their graph, device and dtype, so the result is differentiable (the splat loss,
     :mod:`pointfield.splats.loss`, trains on it); numpy arrays become float64 tensors, and a pair
-    of mixed dtypes is computed in the wider one. For a score, ``float(ssim(a, b))``.
+    of mixed dtypes is returned in the wider one. The local statistics are computed in float64
+    whatever the inputs' dtype (float32 on MPS): see the comment in the code for why. For a
+    score, ``float(ssim(a, b))``.
 
     Example::
 
@@ -182,8 +184,16 @@ def ssim(image: ArrayLike, truth: ArrayLike, data_range: float = 1.0) -> torch.T
         raise ValueError(f"SSIM needs images of at least {SSIM_WINDOW} x {SSIM_WINDOW}, got {width} x {height}")
     # (C, 1, H, W): each channel filtered on its own. A "valid" convolution gives exactly the
     # pixels whose window is inside the image, which are the ones scikit-image averages.
-    x = x.permute(2, 0, 1)[:, None]
-    y = y.permute(2, 0, 1)[:, None]
+    # The local statistics in float64 (float32 on MPS, which has none): the variances E[x^2] -
+    # E[x]^2 cancel where a window is smooth, and on CUDA float32 convolutions run in TF32 (a
+    # 10-bit mantissa) by default, which made the splat loss's SSIM gradient noise (emulated:
+    # off by 0.6 to 47 times its norm on lego views at 100 to 800 px) -- the likely reason
+    # splats did not learn at lego's full size on a GPU (docs/splats.md). cuDNN never uses TF32
+    # for float64. The result keeps the inputs' dtype.
+    dtype = x.dtype
+    work = torch.float32 if x.device.type == "mps" else torch.float64
+    x = x.permute(2, 0, 1)[:, None].to(work)
+    y = y.permute(2, 0, 1)[:, None].to(work)
     window = _gaussian_window(x.dtype, x.device)
 
     def local_mean(channels: torch.Tensor) -> torch.Tensor:
@@ -196,7 +206,7 @@ def ssim(image: ArrayLike, truth: ArrayLike, data_range: float = 1.0) -> torch.T
     c1, c2 = (SSIM_K1 * data_range) ** 2, (SSIM_K2 * data_range) ** 2
     numerator = (2 * mu_x * mu_y + c1) * (2 * cov_xy + c2)
     denominator = (mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2)
-    return (numerator / denominator).mean()
+    return (numerator / denominator).mean().to(dtype)
 
 
 def mean_ssim(images: Sequence[ArrayLike], truths: Sequence[ArrayLike], data_range: float = 1.0) -> float:

@@ -61,12 +61,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--screen-dilation", type=float, default=None, metavar="PX2",
                        help="variance in px^2 added to every splat's screen footprint (default 0.3 as 3DGS; "
                             "Mip-Splatting's 0.1 with --antialiased draws outlines closer, see docs/geometry.md)")
+    train.add_argument("--mip", action="store_true",
+                       help="Mip-Splatting's 3D smoothing and 2D mip filters: splats that hold up closer than "
+                            "the training cameras (implies --antialiased, dilation 0.1 px^2)")
     train.add_argument("--max-splats", type=int, default=DEFAULT_MAX_SPLATS,
                        help=f"densification never grows beyond this many splats (default {DEFAULT_MAX_SPLATS:,})")
     train.add_argument("--initial-splats", type=int, default=20_000,
                        help="random splats to start from when the scene has no sparse points (default 20,000)")
     train.add_argument("--init", choices=("auto", "points", "random"), default="auto",
                        help="start from the scene's sparse points (auto: when it has them) or at random")
+    train.add_argument("--strategy", choices=("default", "mcmc"), default="default",
+                       help="densification: default (3DGS: clone, split, prune) or mcmc (3DGS-MCMC: relocate "
+                            "dead splats, grow to --max-splats; robust to a random start)")
     train.add_argument("--eval-every", type=int, metavar="STEPS", help="score held-out views every STEPS steps (default 250)")
     train.add_argument("--device", help=DEVICE_HELP)
     train.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -123,11 +129,11 @@ def run_train(args: argparse.Namespace) -> int:
             args.scene, out=args.out, steps=args.steps, max_time=max_time_left(args), downscale=args.downscale,
             holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss,
             opacity_entropy=args.opacity_entropy, flatness=args.flatness, antialiased=args.antialiased,
-            screen_dilation=args.screen_dilation, depth_distortion=args.depth_distortion,
+            screen_dilation=args.screen_dilation, mip=args.mip, depth_distortion=args.depth_distortion,
             device=args.device,
             seed=args.seed,
             resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,
-            init=args.init, eval_every=args.eval_every, progress=args.progress,
+            init=args.init, strategy=args.strategy, eval_every=args.eval_every, progress=args.progress,
         )
         print(f"splat run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB{views_text(metrics)}, SSIM "
               f"{metrics['ssim']:.4f}, {opacity_error_text(metrics)}{metrics['splats']:,} splats "

@@ -7,10 +7,12 @@ another object to change the policy (gsplat's design):
   a step exist (``meta`` is :func:`~pointfield.splats.rasterizer.rasterization`'s, with
   ``meta["means2d"].retain_grad()`` called before ``backward``): gather statistics, and every
   so often add, remove or reset splats, resizing the optimizer's state to match;
-- ``sh_degree_at(step)``: the SH degree rendering should use at ``step``.
+- ``sh_degree_at(step)``: the SH degree rendering should use at ``step``;
+- ``regularization(gaussians)``: a term training adds to the loss (0 when the policy has none).
 
 :class:`DefaultStrategy` is the policy of the 3D Gaussian splatting paper, with gsplat's
-names and defaults.
+names and defaults; :class:`MCMCStrategy` is 3DGS-MCMC's (Kheradmand et al. 2024, gsplat's
+``MCMCStrategy``). :func:`make_strategy` is the one place a name (``--strategy``) becomes one.
 """
 
 from __future__ import annotations
@@ -21,7 +23,9 @@ from dataclasses import dataclass, field
 
 import torch
 
-from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians, quaternion_to_rotation
+from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians, covariances, quaternion_to_rotation
+
+STRATEGIES = ("default", "mcmc")
 
 
 @dataclass
@@ -65,6 +69,9 @@ class DefaultStrategy:
 
     def sh_degree_at(self, step: int, max_degree: int) -> int:
         return min(max_degree, step // self.sh_degree_interval)
+
+    def regularization(self, gaussians: Gaussians) -> torch.Tensor | float:
+        return 0.0
 
     def after_backward(
         self, gaussians: Gaussians, optimizer: torch.optim.Optimizer, meta: dict, step: int,
@@ -173,6 +180,175 @@ class DefaultStrategy:
         for key in ("exp_avg", "exp_avg_sq"):
             if key in state:
                 state[key].zero_()
+
+
+@dataclass
+class MCMCStrategy:
+    """3DGS-MCMC's densification (Kheradmand et al., "3D Gaussian Splatting as Markov Chain Monte
+    Carlo", 2024), with the names and defaults of gsplat's ``MCMCStrategy``.
+
+    The splats are samples of a distribution, and densification is moving samples, never
+    cloning by a gradient threshold. Every ``refine_every`` steps from ``refine_start`` until
+    ``refine_stop``:
+
+    - **relocate**: every dead splat (opacity <= ``min_opacity``) is moved onto a live one drawn
+      with probability proportional to opacity (with replacement); a splat drawn ``n - 1``
+      times is shared by ``n`` copies, each given the paper's opacity and scale (Eq. 9) so
+      that together they render as the one did::
+
+          o' = 1 - (1 - o)^(1/n)
+          s' = o / (sum_{i=1}^{n} sum_{k=0}^{i-1} C(i-1, k) (-1)^k o'^(k+1) / sqrt(k+1)) * s
+
+      (``n`` at most ``max_ratio``), and the Adam moments of the splats involved restart at 0;
+    - **add**: ``growth - 1`` (5 %) more splats, drawn the same way, up to ``max_splats``: a
+      hard cap, which the count reaches and keeps.
+
+    After every step each mean moves by noise ``lr * noise_lr * Sigma eps`` (``eps`` standard
+    normal, ``Sigma`` the splat's covariance, ``lr`` the means' current learning rate), gated
+    by ``sigmoid(100 (1 - o - 0.995))`` so that only nearly transparent splats wander: the
+    exploration of the MCMC sampler, which makes it robust to a random start.
+    :meth:`regularization` is the paper's ``opacity_reg * mean(o) + scale_reg * mean(s)``
+    (scales in units of ``scene_scale``: gsplat's scenes are normalised to about unit size,
+    pointfield's are not), which lets unneeded splats die and be relocated.
+    """
+
+    scene_scale: float = 1.0
+    max_splats: int = 1_000_000
+    refine_start: int = 500
+    refine_stop: int = 25_000
+    refine_every: int = 100
+    min_opacity: float = 0.005
+    growth: float = 1.05
+    noise_lr: float = 5e5
+    opacity_reg: float = 0.01
+    scale_reg: float = 0.01
+    max_ratio: int = 51
+    sh_degree_interval: int = 1000
+    seed: int = 0
+    log: Callable[[str], None] = print
+
+    def sh_degree_at(self, step: int, max_degree: int) -> int:
+        return min(max_degree, step // self.sh_degree_interval)
+
+    def regularization(self, gaussians: Gaussians) -> torch.Tensor:
+        return (self.opacity_reg * gaussians.opacities.mean()
+                + self.scale_reg * gaussians.scales.mean() / self.scene_scale)
+
+    def after_backward(
+        self, gaussians: Gaussians, optimizer: torch.optim.Optimizer, meta: dict, step: int,
+        width: int, height: int,
+    ) -> dict[str, int]:
+        """Relocate and add when due, then move the means by the noise. Returns what changed."""
+        changes = {"relocated": 0, "added": 0}
+        generator = torch.Generator().manual_seed(self.seed * 1_000_003 + step)
+        if self.refine_start < step < self.refine_stop and step % self.refine_every == 0:
+            changes["relocated"] = self._relocate(gaussians, optimizer, generator)
+            changes["added"] = self._add(gaussians, optimizer, generator)
+        self._add_noise(gaussians, optimizer, generator)
+        return changes
+
+    def _relocate(self, gaussians: Gaussians, optimizer: torch.optim.Optimizer, generator: torch.Generator) -> int:
+        opacities = gaussians.opacities.detach()
+        dead = opacities <= self.min_opacity
+        count = int(dead.sum())
+        if count == 0 or bool(dead.all()):  # nothing to move, or nowhere to move it
+            return 0
+        alive = torch.nonzero(~dead).squeeze(1)
+        sampled = alive[_draw(opacities[alive], count, generator)]
+        self._share(gaussians, optimizer, sampled)
+        dead_ids = torch.nonzero(dead).squeeze(1)
+        with torch.no_grad():
+            for name in PARAMETER_NAMES:
+                getattr(gaussians, name)[dead_ids] = getattr(gaussians, name)[sampled]
+        _restart_moments(gaussians, optimizer, dead_ids)
+        return count
+
+    def _add(self, gaussians: Gaussians, optimizer: torch.optim.Optimizer, generator: torch.Generator) -> int:
+        current = len(gaussians)
+        count = min(self.max_splats, int(self.growth * current)) - current
+        if count <= 0:
+            return 0
+        sampled = _draw(gaussians.opacities.detach(), count, generator)
+        self._share(gaussians, optimizer, sampled)
+        append_splats(gaussians, optimizer, {name: getattr(gaussians, name).detach()[sampled]
+                                             for name in PARAMETER_NAMES})
+        return count
+
+    def _share(self, gaussians: Gaussians, optimizer: torch.optim.Optimizer, sampled: torch.Tensor) -> None:
+        """Give each splat drawn ``n - 1`` times the opacity and scale of one of ``n`` copies (Eq. 9)."""
+        ratios = torch.bincount(sampled, minlength=len(gaussians))[sampled] + 1
+        opacities, scales = relocation(gaussians.opacities.detach()[sampled], gaussians.scales.detach()[sampled],
+                                       ratios, self.max_ratio)
+        opacities = opacities.clamp(self.min_opacity, 1 - torch.finfo(opacities.dtype).eps)
+        with torch.no_grad():
+            gaussians.opacity_logits[sampled] = torch.logit(opacities)
+            gaussians.log_scales[sampled] = torch.log(scales)
+        _restart_moments(gaussians, optimizer, sampled)
+
+    def _add_noise(self, gaussians: Gaussians, optimizer: torch.optim.Optimizer, generator: torch.Generator) -> None:
+        learning_rate = next((group["lr"] for group in optimizer.param_groups
+                              if any(p is gaussians.means for p in group["params"])), 0.0)
+        with torch.no_grad():
+            opacities = gaussians.opacities
+            gate = torch.sigmoid(100 * ((1 - opacities) - 0.995))
+            noise = torch.randn(len(gaussians), 3, generator=generator, dtype=opacities.dtype).to(opacities.device)
+            noise = noise * (gate * learning_rate * self.noise_lr)[:, None]
+            gaussians.means += (covariances(gaussians.quats, gaussians.scales) @ noise[..., None])[..., 0]
+
+
+def relocation(opacities: torch.Tensor, scales: torch.Tensor, ratios: torch.Tensor,
+               max_ratio: int = 51) -> tuple[torch.Tensor, torch.Tensor]:
+    """3DGS-MCMC's Eq. 9: the opacity ``(M,)`` and scales ``(M, 3)`` of each of ``ratios`` ``(M,)``
+    copies of a splat that together render like it (see :class:`MCMCStrategy`).
+
+    The alternating double sum is evaluated in float64 (its binomials reach 1e14 at ``n = 51``),
+    with ``n`` clamped to ``max_ratio`` as gsplat does.
+    """
+    dtype = opacities.dtype
+    n = ratios.clamp(1, max_ratio).to(torch.float64)
+    o = opacities.to(torch.float64)
+    shared = 1 - (1 - o) ** (1 / n)
+    k = torch.arange(max_ratio, dtype=torch.float64, device=o.device)
+    binomials = torch.tensor([[math.comb(i, j) for j in range(max_ratio)] for i in range(max_ratio)],
+                             dtype=torch.float64, device=o.device)       # (i - 1, k), 0 for k > i - 1
+    terms = binomials * ((-1.0) ** k / torch.sqrt(k + 1))                # (I, K)
+    inner = (shared[:, None] ** (k + 1)) @ terms.T                       # (M, I): the sum over k for each i
+    used = torch.arange(1, max_ratio + 1, device=o.device)[None, :] <= n[:, None]
+    denominator = (inner * used).sum(1)
+    return shared.to(dtype), ((o / denominator)[:, None] * scales.to(torch.float64)).to(dtype)
+
+
+def _draw(weights: torch.Tensor, count: int, generator: torch.Generator) -> torch.Tensor:
+    """``count`` indices drawn with replacement, with probability proportional to ``weights`` (N,)."""
+    drawn = torch.multinomial(weights.detach().float().cpu().clamp_min(0), count, replacement=True,
+                              generator=generator)
+    return drawn.to(weights.device)
+
+
+def _restart_moments(gaussians: Gaussians, optimizer: torch.optim.Optimizer, index: torch.Tensor) -> None:
+    """Zero the Adam moments of the splats ``index`` in every parameter (their values were replaced)."""
+    for name in PARAMETER_NAMES:
+        state = optimizer.state.get(getattr(gaussians, name), {})
+        for key in ("exp_avg", "exp_avg_sq"):
+            if key in state:
+                state[key][index] = 0
+
+
+def make_strategy(name: str, *, scene_scale: float, max_splats: int, seed: int, steps: int,
+                  log: Callable[[str], None] = print) -> DefaultStrategy | MCMCStrategy:
+    """The densification strategy ``name`` (``STRATEGIES``) with its schedule scaled to a run of ``steps``.
+
+    Both start refining at step 500 or a tenth of the run, whichever is first, and raise the
+    SH degree every 1000 steps or a quarter of the run; the default strategy stops at half the
+    run (3DGS: 15,000 of 30,000 steps), MCMC at five sixths (gsplat: 25,000 of 30,000).
+    """
+    common = {"scene_scale": scene_scale, "max_splats": max_splats, "seed": seed, "log": log,
+              "refine_start": min(500, steps // 10), "sh_degree_interval": max(min(1000, steps // 4), 1)}
+    if name == "default":
+        return DefaultStrategy(refine_stop=max(steps // 2, 1), **common)
+    if name == "mcmc":
+        return MCMCStrategy(refine_stop=max(steps * 5 // 6, 1), **common)
+    raise ValueError(f"strategy must be one of {', '.join(STRATEGIES)}, got {name!r}")
 
 
 def remove_splats(gaussians: Gaussians, optimizer: torch.optim.Optimizer, keep: torch.Tensor) -> None:

@@ -94,6 +94,9 @@ class Gaussians(nn.Module):
         for name, value in given.items():
             setattr(self, name, nn.Parameter(value.detach().clone()))
         self.active_sh_degree = self.sh_degree if active_sh_degree is None else int(active_sh_degree)
+        # Mip-Splatting's 3D filter variance per splat (N,), or None: not a parameter and not
+        # saved, recomputed from the training cameras (pointfield.splats.mip).
+        self.smoothing: torch.Tensor | None = None
 
     # -- construction ------------------------------------------------------------------------
 

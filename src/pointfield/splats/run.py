@@ -24,10 +24,11 @@ import torch
 from pointfield.devices import pick_device
 from pointfield.errors import PointfieldError
 from pointfield.scenes.cameras import Cameras
-from pointfield.scenes.heldout import OUTPUTS, View, open_scene
+from pointfield.scenes.heldout import OUTPUTS, View, open_scene, training_and_heldout
 from pointfield.scenes.run import SceneRun, render_path
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
 from pointfield.splats.gsplat_rasterizer import choose_rasterizer, rasterization_gsplat
+from pointfield.splats.mip import baked, drawn, training_smoothing
 from pointfield.splats.ply import read_splat_mode, read_splats, write_splats
 from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization, rasterizer_mode
 from pointfield.training.checkpoints import load_checkpoint
@@ -63,7 +64,8 @@ def render_views(
     the ones the splats were trained with).
     """
     chosen = choose_rasterizer(rasterizer, gaussians.means.device)
-    splats = (gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities, gaussians.sh_coefficients)
+    scales, opacities = drawn(gaussians)  # with Mip-Splatting's 3D filter where the run has it
+    splats = (gaussians.means, gaussians.quats, scales, opacities, gaussians.sh_coefficients)
     options = {"sh_degree": gaussians.active_sh_degree if sh_degree is None else sh_degree, "backgrounds": background,
                "antialiased": antialiased, "screen_dilation": screen_dilation}
     if chosen == "pointfield":
@@ -130,7 +132,12 @@ class SplatRun(SceneRun):
         extra = state.get("_extra_state")
         if isinstance(extra, dict) and "active_sh_degree" in extra:
             gaussians.active_sh_degree = int(extra["active_sh_degree"])
-        return cls(directory, config, gaussians.to(device).eval(), device)
+        gaussians = gaussians.to(device).eval()
+        run = cls(directory, config, gaussians, device)
+        if config.get("mip"):
+            train_frames, _ = training_and_heldout(run.scene)
+            gaussians.smoothing = training_smoothing(gaussians, run.scene.cameras[train_frames])
+        return run
 
     @property
     def gaussians(self) -> Gaussians:
@@ -147,6 +154,8 @@ def export(run: str | os.PathLike[str], out: str | os.PathLike[str]) -> dict[str
     they were trained to be drawn."""
     opened = open_run((SplatRun,), run, "cpu")
     gaussians, mode = opened.gaussians, rasterizer_mode(opened.config)
+    if gaussians.smoothing is not None:
+        gaussians = baked(gaussians)  # the 3D filter in the scales and opacities, for any viewer
     write_splats(out, gaussians, mode)
     return {"out": str(out), "splats": len(gaussians), "sh_degree": gaussians.sh_degree, **mode}
 

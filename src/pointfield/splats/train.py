@@ -30,7 +30,9 @@ training shrinks the object about a pixel to match. With Mip-Splatting's smaller
 (``screen_dilation=0.1`` px^2 instead of 3DGS's 0.3) it is drawn closer still (tiled with discs
 of 0.01: 3.8 % over its outline, against 6.2 % at 0.3). The run records both, and everything
 that renders the run uses them.
-:class:`~pointfield.splats.densification.DefaultStrategy` grows and prunes the splats from step 500 to half the run, never beyond ``max_splats``.
+:class:`~pointfield.splats.densification.DefaultStrategy` grows and prunes the splats from step 500 to half the run, never beyond ``max_splats``;
+``strategy="mcmc"`` chooses :class:`~pointfield.splats.densification.MCMCStrategy` instead
+(3DGS-MCMC: relocation of dead splats, a hard cap, its opacity and scale regularisers).
 
 :class:`SplatTask` is this recipe as the one training lifecycle (:mod:`pointfield.training`)
 runs it: checkpoints, resuming, time limit, progress and NaN checks come from there, and its
@@ -64,7 +66,7 @@ from pointfield.scenes.heldout import (
 )
 from pointfield.scenes.paths import scene_centre_and_up
 from pointfield.scenes.scene import Scene
-from pointfield.splats.densification import DefaultStrategy
+from pointfield.splats.densification import STRATEGIES, make_strategy
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
 from pointfield.splats.loss import (
     depth_distortion,
@@ -72,6 +74,7 @@ from pointfield.splats.loss import (
     opacity_entropy,
     splat_loss,
 )
+from pointfield.splats.mip import MIP_DILATION, REFRESH_EVERY, drawn, training_smoothing
 from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization, rasterizer_mode
 from pointfield.splats.run import (
     TASK,
@@ -165,15 +168,21 @@ class SplatTask(Task):
             "alpha_loss": settings.get("alpha_loss"),
             "opacity_entropy": settings.get("opacity_entropy"),
             "flatness": settings.get("flatness"),
-            "antialiased": bool(settings.get("antialiased")),
-            "screen_dilation": float(SCREEN_DILATION if settings.get("screen_dilation") is None
-                                     else settings["screen_dilation"]),
+            # Mip-Splatting's filters: the 3D one (pointfield.splats.mip) and, as its 2D one, the
+            # antialiased mode with a 0.1 px^2 dilation unless another dilation is asked for.
+            "mip": bool(settings.get("mip")),
+            "antialiased": bool(settings.get("antialiased") or settings.get("mip")),
+            "screen_dilation": float(settings["screen_dilation"] if settings.get("screen_dilation") is not None
+                                     else MIP_DILATION if settings.get("mip") else SCREEN_DILATION),
             "depth_distortion": settings.get("depth_distortion"),
+            "strategy": settings.get("strategy") or "default",
         }
         if min(config["steps"], config["max_splats"], config["initial_splats"], config["eval_every"]) < 1:
             raise PointfieldError("--steps, --max-splats and --eval-every must be positive")
         if not (math.isfinite(config["screen_dilation"]) and config["screen_dilation"] > 0):
             raise PointfieldError(f"--screen-dilation must be a positive number of px^2, got {config['screen_dilation']}")
+        if config["strategy"] not in STRATEGIES:
+            raise PointfieldError(f"--strategy must be one of {', '.join(STRATEGIES)}, got {config['strategy']!r}")
         if config["init"] not in INITS:
             raise PointfieldError(f"--init must be one of {', '.join(INITS)}, got {config['init']!r}")
         return config
@@ -196,11 +205,8 @@ class SplatTask(Task):
         )
         self.means_learning_rate = LEARNING_RATES["means"] * extent
         total = config["steps"]
-        self.strategy = DefaultStrategy(
-            scene_scale=extent, max_splats=config["max_splats"], seed=config["seed"],
-            refine_start=min(500, total // 10), refine_stop=max(total // 2, 1),
-            sh_degree_interval=max(min(1000, total // 4), 1),
-        )
+        self.strategy = make_strategy(config.get("strategy", "default"), scene_scale=extent,
+                                      max_splats=config["max_splats"], seed=config["seed"], steps=total)
         # Each view renders at its own size: a posed photo set may hold several (one camera per size).
         self.sizes = [(int(w), int(h)) for w, h in zip(self.scene.cameras.width, self.scene.cameras.height)]
         self.viewmats, self.Ks = camera_matrices(self.scene.cameras, device)
@@ -253,6 +259,9 @@ class SplatTask(Task):
         self.optimizer.param_groups[0]["lr"] = (
             self.means_learning_rate * FINAL_MEANS_LEARNING_RATE_FRACTION ** (done / self.config["steps"])
         )
+        if self.config.get("mip") and (done % REFRESH_EVERY == 0 or gaussians.smoothing is None
+                                       or len(gaussians.smoothing) != len(gaussians)):
+            self._refresh_smoothing()
         distortion_wanted = self.depth_distortion and done >= DEPTH_DISTORTION_FROM
         if distortion_wanted:
             colors, depths, alphas, meta = self._render_with_squared_depth(view)
@@ -265,7 +274,7 @@ class SplatTask(Task):
         self.last_meta, self.last_size = meta, self.sizes[view]
         target = self.images[view]
         mse = float(torch.mean((rendered.detach().clamp(0, 1) - target) ** 2))
-        loss = splat_loss(rendered, target)
+        loss = splat_loss(rendered, target) + self.strategy.regularization(gaussians)
         if self.alpha_loss:
             loss = loss + self.alpha_loss * (alphas[0] - self.alphas[view]).abs().mean()
         if self.opacity_entropy:
@@ -278,6 +287,10 @@ class SplatTask(Task):
         return Step(loss,
                     {"psnr": psnr_from_mse(mse), "splats": float(len(gaussians))})
 
+    def _refresh_smoothing(self) -> None:
+        """Recompute Mip-Splatting's 3D filter from the training cameras (:mod:`pointfield.splats.mip`)."""
+        self.model.smoothing = training_smoothing(self.model, self.scene.cameras[self.train_frames])
+
     def _render_with_squared_depth(self, view: int):
         """Render training ``view`` with a fourth colour channel: each splat's squared camera z,
         composited (for the depth distortion)."""
@@ -289,7 +302,8 @@ class SplatTask(Task):
             (z * z)[:, None],
         ], dim=-1)
         background = torch.cat([self.background, self.background.new_zeros(1)])
-        return rasterization(gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities, features,
+        scales, opacities = drawn(gaussians)
+        return rasterization(gaussians.means, gaussians.quats, scales, opacities, features,
                              self.viewmats[[view]], self.Ks[[view]], *self.sizes[view], backgrounds=background,
                              **self.mode)
 
@@ -303,6 +317,8 @@ class SplatTask(Task):
         plot_training_curves(records, run.path / CURVES_PNG, title="Gaussian splats", x="step")
 
     def finish(self, run: RunDirectory, state: TrainingState) -> dict[str, Any]:
+        if self.config.get("mip"):
+            self._refresh_smoothing()  # for the final means, as a loaded run computes it
         scores, renders = self.heldout.final(self.render, self.time_budget, self.progress)
         near, far = depth_range(self.scene, [view for _, view, _ in renders])
         save_panels(run.path / HELDOUT_DIR, renders, near, far)
@@ -327,6 +343,7 @@ def train(
     flatness: float | None = None,
     antialiased: bool = False,
     screen_dilation: float | None = None,
+    mip: bool = False,
     depth_distortion: float | None = None,
     device: str | None = None,
     seed: int = 0,
@@ -334,6 +351,7 @@ def train(
     max_splats: int | None = None,
     initial_splats: int = DEFAULT_INITIAL_SPLATS,
     init: str = "auto",
+    strategy: str = "default",
     eval_every: int | None = None,
     eval_views: int = 3,
     progress: bool = True,
@@ -356,15 +374,20 @@ def train(
     the ones measured). ``antialiased``: train (and render) in the rasterizer's antialiased mode;
     ``screen_dilation``: the variance in px^2 added to every splat's screen footprint (default
     0.3, :data:`~pointfield.splats.rasterizer.SCREEN_DILATION`; Mip-Splatting's filter is 0.1).
-    Resuming, only ``steps`` and ``max_splats`` may change. Returns the final metrics
-    (also in ``out/metrics.json``).
+    ``mip``: Mip-Splatting's filters (:mod:`pointfield.splats.mip`): each splat's 3D smoothing
+    filter from the training cameras, and the antialiased mode with a 0.1 px^2 dilation as the 2D
+    mip filter, so that the splats hold up closer than they were trained. ``strategy``: how
+    splats are added and removed, "default" (3DGS's cloning, splitting and pruning) or "mcmc"
+    (3DGS-MCMC: dead splats relocated, the count grown to ``max_splats``), see
+    :mod:`pointfield.splats.densification`. Resuming, only ``steps`` and ``max_splats`` may
+    change. Returns the final metrics (also in ``out/metrics.json``).
     """
     settings = {
         "scene": scene, "steps": steps, "downscale": downscale, "holdout_every": holdout_every,
         "background": background, "alpha_loss": alpha_loss, "opacity_entropy": opacity_entropy,
         "flatness": flatness, "antialiased": antialiased,
-        "screen_dilation": screen_dilation, "depth_distortion": depth_distortion, "seed": seed,
-        "max_splats": max_splats, "initial_splats": initial_splats, "init": init,
+        "screen_dilation": screen_dilation, "mip": mip, "depth_distortion": depth_distortion, "seed": seed,
+        "max_splats": max_splats, "initial_splats": initial_splats, "init": init, "strategy": strategy,
         "eval_every": eval_every, "eval_views": eval_views, "cube_views": cube_views, "cube_size": cube_size,
     }
     return lifecycle.train(SplatTask, settings, out=out, resume=resume, device=device, max_time=max_time,

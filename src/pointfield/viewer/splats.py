@@ -22,18 +22,23 @@ import torch
 
 from pointfield.fields.encodings.spherical_harmonics import C0
 from pointfield.splats.gaussians import Gaussians, covariances
+from pointfield.splats.mip import drawn
 from pointfield.splats.ply import read_splats
 from pointfield.viewer.server import Viewer
 
 
 def splat_arrays(gaussians: Gaussians) -> dict[str, np.ndarray]:
-    """``centers`` (N, 3), ``covariances`` (N, 3, 3), ``rgbs`` (N, 3) and ``opacities`` (N, 1), float32 numpy."""
+    """``centers`` (N, 3), ``covariances`` (N, 3, 3), ``rgbs`` (N, 3) and ``opacities`` (N, 1), float32 numpy.
+
+    Scales and opacities are the drawn ones: with Mip-Splatting's 3D filter where the run has it.
+    """
     with torch.no_grad():
+        scales, opacities = drawn(gaussians)
         return {
             "centers": gaussians.means.float().cpu().numpy(),
-            "covariances": covariances(gaussians.quats, gaussians.scales).float().cpu().numpy(),
+            "covariances": covariances(gaussians.quats, scales).float().cpu().numpy(),
             "rgbs": (0.5 + C0 * gaussians.sh_dc[:, 0, :]).clamp(0, 1).float().cpu().numpy(),
-            "opacities": gaussians.opacities[:, None].float().cpu().numpy(),
+            "opacities": opacities[:, None].float().cpu().numpy(),
         }
 
 
