@@ -17,6 +17,7 @@ from pointfield.cli.geometry_options import (
     export_geometry_of,
     opacity_error_text,
 )
+from pointfield.cli.scene_options import add_scene_training_options
 from pointfield.cli.view import add_view_options, training_view
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
@@ -45,9 +46,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--steps", type=int, help="optimizer steps (default: tiny 2000, nerf 5000, ngp 3000)")
     train.add_argument("--max-time", type=float, metavar="SECONDS", help="stop after this much training time")
     train.add_argument("--batch-rays", type=int, default=1024, help="rays per step (default 1024)")
-    train.add_argument("--downscale", type=int, default=1, help="divide image sizes by this integer (default 1)")
-    train.add_argument("--holdout-every", type=int, metavar="N",
-                       help="hold every N-th training view out for evaluation (for scenes without test views)")
+    add_scene_training_options(train)
     train.add_argument("--background", help="white, black or 'r,g,b' to composite alpha onto (default: the scene's)")
     train.add_argument("--random-background", action=argparse.BooleanOptionalAction, default=None,
                        help="train as if a random colour were behind each ray (in expectation), so that opacity "

@@ -15,6 +15,7 @@ from pointfield.cli.geometry_options import (
     export_geometry_of,
     opacity_error_text,
 )
+from pointfield.cli.scene_options import add_scene_training_options
 from pointfield.cli.view import add_view_options, training_view
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
@@ -38,9 +39,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--out", type=Path, default=Path("runs/splat"), help="run folder (default runs/splat)")
     train.add_argument("--steps", type=int, help="optimizer steps, one view each (default 3000)")
     train.add_argument("--max-time", type=float, metavar="SECONDS", help="stop after this much training time")
-    train.add_argument("--downscale", type=int, default=1, help="divide image sizes by this integer (default 1)")
-    train.add_argument("--holdout-every", type=int, metavar="N",
-                       help="hold every N-th training view out for evaluation (for scenes without test views)")
+    add_scene_training_options(train)
     train.add_argument("--background", help="white, black or 'r,g,b' to composite alpha onto (default: the scene's)")
     train.add_argument("--alpha-loss", type=float, default=None, metavar="WEIGHT",
                        help="weight of |rendered opacity - alpha| in the loss where the images have alpha "
