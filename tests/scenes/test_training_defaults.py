@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 import torch
 
+from pointfield.errors import PointfieldError
+from pointfield.fields.run import evaluate
 from pointfield.fields.train import train
 from pointfield.scenes import Frame, Scene, SceneError, synthetic_scene, write_scene
 from pointfield.scenes.synthetic import synthetic_cameras
@@ -44,6 +46,8 @@ def test_holdout_every_zero_trains_on_every_view_and_reports_training_psnr_only(
     metrics = train(posed_photos, out=tmp_path / "run", holdout_every=0, **TINY)
     assert "psnr" not in metrics and metrics["views"] == 0 and metrics["train_psnr"] > 0
     assert metrics["training_rays"] == 16 * 8 * 8
+    with pytest.raises(PointfieldError, match="--holdout-every 0, so it has no held-out views"):
+        evaluate(tmp_path / "run", device="cpu")
 
 
 def test_auto_downscale_brings_the_longest_side_to_480_px_on_a_cpu_and_1600_on_a_gpu():

@@ -133,7 +133,7 @@ def training_only_scores(state: Any) -> dict[str, Any]:
     ``state``: the finished :class:`~pointfield.training.loop.TrainingState`.
     """
     last = state.history[-1] if state.history else {}
-    return {"train_psnr": last.get("train_psnr"), "views": 0, "heldout": "none (--holdout-every 0)"}
+    return {"train_psnr": last.get("train_psnr"), "views": 0}
 
 
 def ray_bounds(scene: Scene) -> np.ndarray:
