@@ -65,6 +65,8 @@ def main() -> int:
     parser.add_argument("--near-views", type=int, default=8, help="nearer views scored (default 8)")
     parser.add_argument("--frames", type=int, default=12, help="turntable frames scored (default 12)")
     parser.add_argument("--ngp-backend", default="auto", help="ngp's kernels: auto (compiled) or eager (no compile)")
+    parser.add_argument("--models", nargs="+", choices=sorted(GOALS_DB), default=sorted(GOALS_DB),
+                        help="which models to train and score (default both)")
     parser.add_argument("--out", type=Path, default=Path("bench-output/near"), help="scene and run folders")
     args = parser.parse_args()
     shutil.rmtree(args.out, ignore_errors=True)  # an earlier run's: training refuses a used folder
@@ -83,7 +85,8 @@ def main() -> int:
     }
     nearer = synthetic_cameras(args.near_views, args.size, radius=args.near * TRAINING_DISTANCE)
     rows = []
-    for name, train in runs.items():
+    for name in args.models:
+        train = runs[name]
         metrics = train(args.out / name)
         run = load_run(args.out / name)
         turntable = path_cameras(run.scene, "orbit", args.frames)
@@ -95,8 +98,8 @@ def main() -> int:
         print(f"{name}: {rows[-1][2:]}", flush=True)
     record.table(["model", "steps", "held out (training distance)", f"nearer ({args.near}x), against the truth",
                   "turntable, against the truth"], rows, title=f"{args.scene} at {args.size} x {args.size}")
-    for name, goal in GOALS_DB.items():
-        figures = record.figures[name]
+    for name in args.models:
+        goal, figures = GOALS_DB[name], record.figures[name]
         drop = figures["heldout_psnr"] - figures["near_psnr"]
         record.verdict(f"{name}: views from {args.near}x the training distance within {goal:g} dB of its held-out "
                        "PSNR", drop <= goal, f"{drop:+.2f} dB below")
