@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution clean
+.PHONY: demo test lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -52,7 +52,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution
+bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -108,6 +108,10 @@ bench-geometry: $(BIN)/.open3d
 # Lego's PSNR with and without opacity training, five seeds of equal steps (68 minutes for the first record)
 bench-backgrounds: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_backgrounds.py
+
+# ngp and splats scored from nearer cameras and along the turntable against a scene make scene's analytic truth
+bench-near: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_near.py
 
 # Streaming downsample of 20 M, 50 M and 200 M point LAZ files (generated once into
 # ../bench-output/streaming) and Dask on a folder of scans; smaller: make bench-streaming STREAMING_SIZES=2000000,5000000

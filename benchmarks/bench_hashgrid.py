@@ -273,7 +273,7 @@ def memory_child(request: dict) -> dict:
     cameras = synthetic_cameras(views + 1, size)
     scene = Scene(cameras, [Frame(f"r_{i}", image=blank) for i in range(views + 1)],
                   near_far=np.tile([2.0, 6.0], (views + 1, 1)))
-    rays, colors = scene_rays(scene, range(views), device)
+    rays, colors = scene_rays(scene, range(views), model.extent, device)
     budget = RayBudget(model.target_samples)
     mark(f"rays of {views} views")
     background = torch.ones(3, device=device)
@@ -292,7 +292,7 @@ def memory_child(request: dict) -> dict:
         samples.append(len(output.final.samples))
     training_seconds = time.perf_counter() - started
     mark(f"{request['steps']} training steps")
-    view, _ = scene_rays(scene, [views], device)
+    view, _ = scene_rays(scene, [views], model.extent, device)
     pixels = size * size
     chunk_rows = size if request["render_chunks"] is None else max(1, request["render_chunks"] * RENDER_CHUNK // size)
     first_row = max(0, size // 2 - chunk_rows // 2)

@@ -43,12 +43,13 @@ def lego_like_grid():
     return grid
 
 
-def lego_rays():
+def lego_rays(box: torch.Tensor):
+    from pointfield.fields.rays import SceneExtent
     from pointfield.fields.train import scene_rays
     from pointfield.scenes import read_scene
 
     scene = read_scene(LEGO).downscaled(8)
-    rays, _ = scene_rays(scene, [0], torch.device("cpu"))
+    rays, _ = scene_rays(scene, [0], SceneExtent(box.tolist()), torch.device("cpu"))
     return rays
 
 
@@ -63,7 +64,8 @@ def main() -> int:
         torch.set_num_threads(args.threads)
     if not (LEGO / "transforms_train.json").is_file():
         raise SystemExit(f"lego scene not found at {LEGO}")
-    grid, rays = lego_like_grid(), lego_rays()
+    grid = lego_like_grid()
+    rays = lego_rays(grid.box)
     step = float(torch.linalg.norm(grid.box[1] - grid.box[0])) / 256
 
     def march(backend: str):

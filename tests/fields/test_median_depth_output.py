@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from pointfield.fields.field import FieldOutput, RadianceField
-from pointfield.fields.rays import RaySamples
+from pointfield.fields.rays import RaySamples, SceneExtent
 from pointfield.fields.rendering import render_rays
 from pointfield.fields.run import render_field
 from pointfield.fields.sampling import stratified_samples
@@ -22,6 +22,8 @@ from pointfield.splats.rasterizer import rasterization
 from pointfield.splats.run import render_camera
 
 SIZE = 17  # pixel 8's centre is on the optical axis
+SLAB_BOX = SceneExtent(((-6.0, -6.0, 0.5), (6.0, 6.0, 6.5)))
+"""Rays enter at z = 0.5 and leave at z = 6.5: a length of 6 / axis cosine."""
 
 
 def camera_at_origin() -> Cameras:
@@ -55,9 +57,9 @@ class Slabs(RadianceField):
 
 def test_a_fields_median_depth_is_the_distance_along_the_ray_to_the_wall_behind_a_faint_slab():
     cameras = camera_at_origin()
-    view = render_field(Slabs(faint=0.3), cameras, 0, 0.5, 6.5, torch.zeros(3))
+    view = render_field(Slabs(faint=0.3), cameras, 0, SLAB_BOX, torch.zeros(3))
     distance_to_wall = 4.0 / cameras.rays(0).axis_cosine
-    step = 6.0 / 600
+    step = 6.0 / 600 / cameras.rays(0).axis_cosine
     assert view["median_depth"].shape == (SIZE, SIZE)
     # the first sample past the wall, at most a sample spacing beyond it
     assert bool((view["median_depth"] >= distance_to_wall - 1e-4).all())
@@ -67,7 +69,7 @@ def test_a_fields_median_depth_is_the_distance_along_the_ray_to_the_wall_behind_
 
 
 def test_a_fields_median_depth_is_zero_where_opacity_stays_below_one_half():
-    view = render_field(Slabs(faint=0.3, wall=False), camera_at_origin(), 0, 0.5, 6.5, torch.zeros(3))
+    view = render_field(Slabs(faint=0.3, wall=False), camera_at_origin(), 0, SLAB_BOX, torch.zeros(3))
     assert float(view["opacity"].max()) < 0.5
     assert bool((view["depth"][8, 8] > 2) & (view["depth"][8, 8] < 2.1))
     assert bool((view["median_depth"] == 0).all())

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from pointfield.scenes import Cameras, look_at, make_scene, read_scene, render_scene
+from pointfield.scenes import Cameras, look_at, make_scene, read_scene, render_scene, synthetic_truth
 from pointfield.scenes.scene import SceneError
 from pointfield.scenes.synthetic import (
     CUBE_FACE_COLORS,
@@ -200,3 +200,24 @@ def test_the_command_line_offers_every_synthetic_scene():
     from pointfield.scenes import SYNTHETIC_SCENES
 
     assert set(SYNTHETIC_NAMES) == set(SYNTHETIC_SCENES)
+
+
+def test_the_truth_from_a_scenes_own_cameras_is_its_images(cube_dataset):
+    scene = read_scene(cube_dataset)
+    truth = synthetic_truth(scene, scene.cameras[[0, 3]])
+    images = np.stack([scene.image(0), scene.image(3)])
+    assert truth.shape == images.shape and float(np.abs(truth - images).max()) <= 1 / 255 + 1e-6  # 8-bit colour and alpha
+
+
+def test_the_truth_from_a_nearer_camera_shows_the_cube_larger(cube_dataset):
+    scene = read_scene(cube_dataset)
+    covered = [float((np.abs(synthetic_truth(scene, synthetic_cameras(1, 32, radius=r)) - 1).sum(-1) > 1e-3).mean())
+               for r in (4.0, 2.6)]
+    assert covered[1] > 1.8 * covered[0]  # the cube's image grows as 1 / distance squared: (4 / 2.6)^2 = 2.4
+
+
+def test_a_scene_that_is_not_synthetic_has_no_truth_to_render(tmp_path, cube_dataset):
+    scene = read_scene(cube_dataset)
+    scene.metadata["root"] = str(tmp_path)  # as if read from a folder without synthetic.json
+    with pytest.raises(SceneError, match="not a synthetic scene"):
+        synthetic_truth(scene, scene.cameras[[0]])

@@ -16,7 +16,8 @@ from pointfield.cli.geometry_options import (
     export_geometry_of,
     opacity_error_text,
 )
-from pointfield.cli.training_options import add_max_time_option, clock_text, max_time_left, views_text
+from pointfield.cli.scene_options import add_scene_training_options
+from pointfield.cli.training_options import add_max_time_option, clock_text, max_time_left, scores_text
 from pointfield.cli.view import add_view_options, training_view
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
@@ -45,9 +46,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--steps", type=int, help="optimizer steps (default: tiny 2000, nerf 5000, ngp 3000)")
     add_max_time_option(train)
     train.add_argument("--batch-rays", type=int, default=1024, help="rays per step (default 1024)")
-    train.add_argument("--downscale", type=int, default=1, help="divide image sizes by this integer (default 1)")
-    train.add_argument("--holdout-every", type=int, metavar="N",
-                       help="hold every N-th training view out for evaluation (for scenes without test views)")
+    add_scene_training_options(train)
     train.add_argument("--background", help="white, black or 'r,g,b' to composite alpha onto (default: the scene's)")
     train.add_argument("--random-background", action=argparse.BooleanOptionalAction, default=None,
                        help="train as if a random colour were behind each ray (in expectation), so that opacity "
@@ -138,8 +137,7 @@ def run_train(args: argparse.Namespace) -> int:
             eval_every=args.eval_every, learning_rate=args.learning_rate, progress=args.progress,
             scene_box=[float(v) for v in args.scene_box.split(",")] if "," in args.scene_box else args.scene_box,
         )
-        print(f"nerf run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB{views_text(metrics)}, SSIM "
-              f"{metrics['ssim']:.4f}, {opacity_error_text(metrics)}({clock_text(metrics, args)}); "
+        print(f"nerf run {args.out}: {scores_text(metrics)}, {opacity_error_text(metrics)}({clock_text(metrics, args)}); "
               f"see {args.out / 'metrics.json'}")
     return 0
 

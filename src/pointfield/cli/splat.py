@@ -15,7 +15,8 @@ from pointfield.cli.geometry_options import (
     export_geometry_of,
     opacity_error_text,
 )
-from pointfield.cli.training_options import add_max_time_option, clock_text, max_time_left, views_text
+from pointfield.cli.scene_options import add_scene_training_options
+from pointfield.cli.training_options import add_max_time_option, clock_text, max_time_left, scores_text
 from pointfield.cli.view import add_view_options, training_view
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
@@ -39,9 +40,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--out", type=Path, default=Path("runs/splat"), help="run folder (default runs/splat)")
     train.add_argument("--steps", type=int, help="optimizer steps, one view each (default 3000)")
     add_max_time_option(train)
-    train.add_argument("--downscale", type=int, default=1, help="divide image sizes by this integer (default 1)")
-    train.add_argument("--holdout-every", type=int, metavar="N",
-                       help="hold every N-th training view out for evaluation (for scenes without test views)")
+    add_scene_training_options(train)
     train.add_argument("--background", help="white, black or 'r,g,b' to composite alpha onto (default: the scene's)")
     train.add_argument("--alpha-loss", type=float, default=None, metavar="WEIGHT",
                        help="weight of |rendered opacity - alpha| in the loss where the images have alpha "
@@ -135,8 +134,7 @@ def run_train(args: argparse.Namespace) -> int:
             resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,
             init=args.init, strategy=args.strategy, eval_every=args.eval_every, progress=args.progress,
         )
-        print(f"splat run {args.out}: held-out PSNR {metrics['psnr']:.2f} dB{views_text(metrics)}, SSIM "
-              f"{metrics['ssim']:.4f}, {opacity_error_text(metrics)}{metrics['splats']:,} splats "
+        print(f"splat run {args.out}: {scores_text(metrics)}, {opacity_error_text(metrics)}{metrics['splats']:,} splats "
               f"({clock_text(metrics, args)}); see {args.out / 'metrics.json'}")
     return 0
 

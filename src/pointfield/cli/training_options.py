@@ -50,3 +50,12 @@ def views_text(metrics: dict) -> str:
         return ""
     size = f" at 1/{downscale} size" if downscale > 1 else ""
     return f" on {views} of {heldout} held-out views{size} (all would not fit --max-time)"
+
+
+def scores_text(metrics: dict) -> str:
+    """``"held-out PSNR 30.12 dB, SSIM 0.9500"`` (with :func:`views_text`), or for a run trained on every
+    view (``--holdout-every 0``) ``"training PSNR 28.40 dB (no held-out views)"``."""
+    if metrics.get("psnr") is None:
+        training = metrics.get("train_psnr")
+        return "no held-out views" if training is None else f"training PSNR {training:.2f} dB (no held-out views)"
+    return f"held-out PSNR {metrics['psnr']:.2f} dB{views_text(metrics)}, SSIM {metrics['ssim']:.4f}"

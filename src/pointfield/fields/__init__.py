@@ -2,8 +2,10 @@
 
 The vocabulary follows the data (nerfstudio's): cameras -> rays -> samples -> field -> renderer.
 
-- :mod:`~pointfield.fields.rays`: :class:`RayBundle` (rays with near and far bounds) and
+- :mod:`~pointfield.fields.rays`: :class:`RayBundle` (rays with near and far bounds),
+  :class:`SceneExtent` (where along any ray the scene lies: each ray's own near and far) and
   :class:`RaySamples` (intervals along them, padded ``(R, K)`` or packed ``(S,)``).
+- :mod:`~pointfield.fields.training_rays`: the training pixels, their rays jittered inside them.
 - :mod:`~pointfield.fields.sampling`: the samplers -- stratified and importance (NeRF),
   occupancy grid and ray marcher (bounded scenes), proposal networks (unbounded scenes).
 - :mod:`~pointfield.fields.encodings`: Fourier features, the multiresolution hash grid,
@@ -36,7 +38,7 @@ from pointfield.fields.field import FieldOutput, RadianceField, RayBudget, rende
 from pointfield.fields.models import MODELS, build_model
 from pointfield.fields.nerf import NeRF, RadianceMLP, TinyNeRF
 from pointfield.fields.ngp import InstantNGP
-from pointfield.fields.rays import RayBundle, RaySamples
+from pointfield.fields.rays import RayBundle, RaySamples, SceneExtent
 from pointfield.fields.rendering import RenderedRays, composite, render_rays, render_weights_from_density
 from pointfield.fields.sampling import hierarchical_samples, importance_samples, stratified_samples
 
@@ -52,6 +54,7 @@ __all__ = [
     "RayBundle",
     "RaySamples",
     "RenderedRays",
+    "SceneExtent",
     "TinyNeRF",
     "build_model",
     "composite",

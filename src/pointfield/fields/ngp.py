@@ -45,7 +45,7 @@ from pointfield.fields.encodings.contraction import box_to_unit, contract
 from pointfield.fields.encodings.hashgrid import HashEncoding
 from pointfield.fields.encodings.spherical_harmonics import sh_basis
 from pointfield.fields.field import PROBE_COST, FieldOutput, RadianceField
-from pointfield.fields.rays import RayBundle, RaySamples
+from pointfield.fields.rays import RayBundle, RaySamples, SceneExtent
 from pointfield.fields.rendering import composite, render_rays, transmittance_from_optical_depth
 from pointfield.fields.sampling.occupancy import OccupancyGrid, march_rays
 from pointfield.fields.sampling.proposal import ProposalSampler, interlevel_loss, proposal_anneal
@@ -53,8 +53,6 @@ from pointfield.fields.sampling.proposal import ProposalSampler, interlevel_loss
 DIRECTION_SH_DEGREE = 3  # bands l = 0..3: 16 values, tiny-cuda-nn's "degree 4"
 GEOMETRY_FEATURES = 15
 EARLY_STOP_TRANSMITTANCE = 1e-4
-UNBOUNDED_FAR = 1e3
-"""Unbounded scenes are sampled out to this many radii of the region of interest."""
 
 CUDA_OPTIONS = {"levels": 16, "features_per_level": 2, "log2_table_size": 19, "steps_across_box": 1024,
                 "grid_resolution": 128, "target_samples": 1 << 18}
@@ -196,6 +194,11 @@ class InstantNGP(RadianceField):
             self.proposal = None
         self._anneal = proposal_anneal(0)  # the proposal weights' exponent; before_step advances it
 
+    @property
+    def extent(self) -> SceneExtent:
+        """The region this field covers, which bounds every ray rendered through it (:class:`SceneExtent`)."""
+        return SceneExtent(self.box.tolist(), self.unbounded)
+
     # -- coordinates ---------------------------------------------------------------------------------
 
     def to_unit(self, positions: torch.Tensor) -> torch.Tensor:
@@ -281,10 +284,8 @@ class InstantNGP(RadianceField):
         return FieldOutput([rendered], samples=len(samples) + PROBE_COST * probed)
 
     def _render_unbounded(self, rays, background, jitter, generator) -> FieldOutput:
-        # Out to the distance where the contracted space ends (in float32 terms): real captures'
-        # backgrounds lie beyond any near/far bound their poses came with.
-        far = torch.full_like(rays.far, UNBOUNDED_FAR * self.radius)
-        rays = RayBundle(rays.origins, rays.directions, rays.near, far)
+        # The rays' own near and far: SceneExtent.near_far of this model's extent runs them from
+        # the near plane to where the contracted space ends.
         anneal = self._anneal if self.training else 1.0
         edges, rounds = self.proposal(rays, self.to_unit, jitter=jitter, generator=generator, anneal=anneal)
         samples = RaySamples.from_bin_edges(edges).packed()

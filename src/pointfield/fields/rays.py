@@ -4,6 +4,12 @@ Conventions (nerfstudio's vocabulary, nerfacc's layouts):
 
 - A :class:`RayBundle` is R rays ``x(t) = origin + t direction`` with unit directions, each to be
   rendered between the distances ``near`` and ``far``.
+- Those distances come from the scene, ray by ray, never from the cameras a field was trained
+  with: a :class:`SceneExtent` (the box a field reconstructs, bounded or contracted around)
+  gives every ray its own ``near`` and ``far`` (:meth:`SceneExtent.near_far`), so a camera
+  nearer, farther or inside the box renders what is there. Training, ``run.render``, ``nerf
+  render``, the viewer and the geometry exporters all make their rays this one way
+  (:meth:`RayBundle.within`, :meth:`RayBundle.of_camera`).
 - :class:`RaySamples` are intervals ``[t_start, t_end)`` along those rays, in one of two layouts:
 
   - **padded** -- ``t_starts``, ``t_ends`` ``(R, K)``: every ray has K samples (``ray_indices``
@@ -25,6 +31,92 @@ from dataclasses import dataclass
 import torch
 
 from pointfield.scenes.cameras import Cameras
+
+NEAR_PLANE = 0.01
+"""No ray starts nearer its camera than this fraction of the scene box's diagonal (the near
+plane of a camera inside the box; nerfstudio's 0.05 on its unit-scaled scenes is about the same
+share of their box)."""
+UNBOUNDED_FAR = 1e3
+"""Rays through an unbounded (contracted) scene end this many box radii away: where the
+contracted space ends, in float32 terms -- real captures' backgrounds lie beyond any near/far
+bound their poses came with."""
+
+
+def ray_box_intersection(
+    origins: torch.Tensor, directions: torch.Tensor, box: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Distances ``(R,)`` at which rays enter and leave the ``(2, 3)`` box (slab method).
+
+    A ray that misses gets ``enter >= leave``; a ray starting inside gets ``enter < 0``.
+
+    Example::
+
+        >>> box = torch.tensor([[-1.0, -1, -1], [1, 1, 1]])
+        >>> ray_box_intersection(torch.tensor([[0.0, 0, -3]]), torch.tensor([[0.0, 0, 1]]), box)
+        (tensor([2.]), tensor([4.]))
+    """
+    safe = torch.where(directions.abs() < 1e-12, torch.full_like(directions, 1e-12), directions)
+    t_low = (box[0] - origins) / safe
+    t_high = (box[1] - origins) / safe
+    enter = torch.minimum(t_low, t_high).amax(dim=-1)
+    leave = torch.maximum(t_low, t_high).amin(dim=-1)
+    return enter, leave
+
+
+@dataclass(frozen=True)
+class SceneExtent:
+    """Where along any ray a field's scene lies: the world ``box`` ``(2, 3)`` (min, max) and whether
+    space beyond it is ``unbounded`` (contracted around it).
+
+    :meth:`near_far` gives each ray its own interval, as nerfstudio's ``AABBBoxCollider`` and
+    instant-ngp's aabb do for an object, and nerfacto's near and far planes for a capture:
+
+    - bounded: from where the ray enters the box to where it leaves it, starting no nearer than
+      the near plane (``NEAR_PLANE`` x the box's diagonal), so that a camera inside the box sees
+      what is in front of it; a ray that misses the box gets ``near == far`` and so renders the
+      background;
+    - unbounded: from the near plane to ``UNBOUNDED_FAR`` box radii, the far end of the
+      contracted space.
+
+    Example (a camera 3 units from a unit box's centre, one inside it, one looking past it)::
+
+        >>> extent = SceneExtent(((-1.0, -1, -1), (1, 1, 1)))
+        >>> origins = torch.tensor([[0.0, 0, -3], [0, 0, 0], [0, 3, -3]])
+        >>> near, far = extent.near_far(origins, torch.tensor([[0.0, 0, 1], [0, 0, 1], [0, 0, 1]]))
+        >>> near, far
+        (tensor([2.0000, 0.0346, 0.0346]), tensor([4.0000, 1.0000, 0.0346]))
+    """
+
+    box: tuple[tuple[float, float, float], tuple[float, float, float]]
+    unbounded: bool = False
+
+    def __post_init__(self) -> None:
+        box = tuple(tuple(float(v) for v in corner) for corner in self.box)
+        if len(box) != 2 or any(len(corner) != 3 for corner in box) or not all(
+                high > low for low, high in zip(*box)):
+            raise ValueError(f"a scene box needs min < max on every axis, got {self.box}")
+        object.__setattr__(self, "box", box)
+
+    @property
+    def diagonal(self) -> float:
+        """The box's diagonal, in scene units."""
+        return float(torch.linalg.norm(torch.tensor(self.box[1]) - torch.tensor(self.box[0])))
+
+    @property
+    def near_plane(self) -> float:
+        """The nearest any ray starts: ``NEAR_PLANE`` x the diagonal."""
+        return NEAR_PLANE * self.diagonal
+
+    def near_far(self, origins: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``near``, ``far`` ``(R,)`` of rays ``origins``, unit ``directions`` ``(R, 3)`` (class docstring)."""
+        count = origins.shape[0]
+        near = torch.full((count,), self.near_plane, dtype=origins.dtype, device=origins.device)
+        if self.unbounded:
+            return near, torch.full_like(near, UNBOUNDED_FAR * 0.5 * self.diagonal)
+        box = torch.tensor(self.box, dtype=origins.dtype, device=origins.device)
+        enter, leave = ray_box_intersection(origins, directions, box)
+        near = torch.maximum(enter, near)
+        return near, torch.maximum(leave, near)  # a miss: an empty interval, so the background
 
 
 @dataclass
@@ -70,12 +162,16 @@ class RayBundle:
         return self.origins.device
 
     @classmethod
-    def of_camera(cls, cameras: Cameras, index: int, near: float, far: float) -> RayBundle:
-        """Every pixel of camera ``index`` as a ray (row-major, ``H W`` rays), between ``near`` and ``far``."""
+    def within(cls, origins: torch.Tensor, directions: torch.Tensor, extent: SceneExtent) -> RayBundle:
+        """Rays ``origins``, unit ``directions`` ``(R, 3)``, each between its own :meth:`SceneExtent.near_far`."""
+        origins, directions = origins.float(), directions.float()
+        return cls(origins, directions, *extent.near_far(origins, directions))
+
+    @classmethod
+    def of_camera(cls, cameras: Cameras, index: int, extent: SceneExtent) -> RayBundle:
+        """Every pixel centre of camera ``index`` as a ray (row-major, ``H W`` rays), bounded by ``extent``."""
         rays = cameras.rays(index).reshape(-1)
-        count = rays.shape[0]
-        return cls(rays.origins.float(), rays.directions.float(), torch.full((count,), float(near)),
-                   torch.full((count,), float(far)))
+        return cls.within(rays.origins, rays.directions, extent)
 
     @classmethod
     def cat(cls, bundles: list[RayBundle]) -> RayBundle:

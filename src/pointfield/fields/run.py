@@ -1,9 +1,11 @@
 """A trained radiance field opened for use: :class:`FieldRun`, and rendering a field into cameras.
 
-Every pixel of a camera is a ray (:meth:`pointfield.scenes.Cameras.rays`) marched between the
-scene's nearest ``near`` and farthest ``far`` bound (:func:`pointfield.scenes.heldout.ray_bounds`),
-rendered without gradients in chunks of :data:`RENDER_CHUNK` rays, at the samplers' bin centres
-(no jitter), so renders are repeatable.
+Every pixel of a camera is a ray (:meth:`pointfield.scenes.Cameras.rays`) through its centre,
+marched between its own near and far distances: where it enters and leaves the region the field
+covers (:func:`field_extent`, :meth:`~pointfield.fields.rays.SceneExtent.near_far`), whatever
+camera it comes from -- nearer than the training cameras, farther, or inside the box. Rendered
+without gradients in chunks of :data:`RENDER_CHUNK` rays, at the samplers' bin centres (no
+jitter), so renders are repeatable.
 """
 
 from __future__ import annotations
@@ -19,10 +21,12 @@ from torch import nn
 from pointfield.errors import PointfieldError
 from pointfield.fields.field import RadianceField, render_in_chunks
 from pointfield.fields.models import MODELS, build_model
-from pointfield.fields.rays import RayBundle
+from pointfield.fields.rays import RayBundle, SceneExtent
+from pointfield.fields.scene_box import scene_bounds
 from pointfield.scenes.cameras import Cameras
-from pointfield.scenes.heldout import OUTPUTS, View, depth_bounds
+from pointfield.scenes.heldout import OUTPUTS, View
 from pointfield.scenes.run import SceneRun
+from pointfield.scenes.scene import Scene
 from pointfield.training.lifecycle import open_run, restore_model
 from pointfield.training.run import RunDirectory
 from pointfield.viz.views import PANELS
@@ -44,17 +48,38 @@ def build_field(config: dict[str, Any], device: torch.device) -> RadianceField:
         raise PointfieldError(f"model options do not fit model {config['model']!r} ({error})") from None
 
 
+def field_extent(config: dict[str, Any], scene: Scene) -> SceneExtent:
+    """Where every ray of a run's field is marched, whichever camera it comes from.
+
+    ``ngp``: its own box (``model_options``), contracted around when unbounded. ``tiny`` and
+    ``nerf``, which do not contract space: the box of the run's ``--scene-box`` numbers, else
+    the scene's bounded box (:func:`~pointfield.fields.scene_box.scene_bounds`: its ``aabb``,
+    its sparse points' central 98 %, or the cube its cameras look into), beyond which they
+    render the background.
+    """
+    options = config.get("model_options", {})
+    if "box" in options:
+        return SceneExtent(options["box"], bool(options.get("unbounded", False)))
+    chosen = config.get("scene_box", "auto")
+    try:
+        box, _ = scene_bounds(scene, "bounded" if isinstance(chosen, str) else chosen)
+    except ValueError as error:
+        raise PointfieldError(str(error)) from None
+    return SceneExtent(box)
+
+
 @torch.no_grad()
 def render_field(
-    model: nn.Module, cameras: Cameras, index: int, near: float, far: float, background: torch.Tensor,
+    model: nn.Module, cameras: Cameras, index: int, extent: SceneExtent, background: torch.Tensor,
     chunk: int = RENDER_CHUNK,
 ) -> View:
     """Camera ``index`` rendered by ``model``: ``rgb`` ``(H, W, 3)``; ``depth``, ``median_depth``, ``opacity`` ``(H, W)``.
 
+    Each pixel's ray runs between its own near and far of ``extent`` (:meth:`SceneExtent.near_far`).
     Both depths are distances along the pixel's (unit) ray from the camera centre, in scene units
     (:data:`pointfield.scenes.heldout.OUTPUTS`).
     """
-    bundle = RayBundle.of_camera(cameras, index, near, far).to(background.device)
+    bundle = RayBundle.of_camera(cameras, index, extent).to(background.device)
     was_training = model.training
     model.eval()
     out = render_in_chunks(model, bundle, background, chunk=chunk)
@@ -81,13 +106,13 @@ class FieldRun(SceneRun):
         return cls(directory, config, model, device)
 
     @cached_property
-    def marched_between(self) -> tuple[float, float]:
-        """Where any camera's rays are marched: the training scene's :func:`~pointfield.scenes.heldout.depth_bounds`."""
-        return depth_bounds(self.scene)
+    def extent(self) -> SceneExtent:
+        """Where any camera's rays are marched, each its own near and far: :func:`field_extent`."""
+        return field_extent(self.config, self.scene)
 
     def render_one(self, cameras: Cameras, index: int, outputs: Sequence[str] = OUTPUTS) -> View:
         # Every output comes from the same pass, at no extra cost: all are rendered.
-        return render_field(self.module, cameras, index, *self.marched_between, self.background)
+        return render_field(self.module, cameras, index, self.extent, self.background)
 
 
 def evaluate(run: str | os.PathLike[str], device: str | None = None) -> dict[str, Any]:

@@ -14,9 +14,13 @@ each step renders ``batch_rays`` of them, drawn without replacement until all ha
 (one *epoch*, a pass over all training rays, then reshuffled), and minimises the mean squared
 colour error of every render pass (NeRF: coarse and fine), plus on the fast field of an object
 the distortion loss (:data:`BOUNDED_NGP_DISTORTION`), with Adam, learning rate decayed
-exponentially to a tenth over the run. Samples are jittered while training and at bin centres
-when evaluating. The hash-grid field (``ngp``) sizes its own batches instead: as many random
-rays as keep a step near its ``target_samples`` (:class:`~pointfield.fields.field.RayBudget`).
+exponentially to a tenth over the run. The hash-grid field (``ngp``) sizes its own batches
+instead: as many random rays as keep a step near its ``target_samples``
+(:class:`~pointfield.fields.field.RayBudget`). Each training ray passes through a random point
+of its pixel and its samples are jittered along it (:mod:`pointfield.fields.training_rays`);
+renders go through pixel centres, at bin centres. Every ray, training or rendering, is marched
+between its own near and far: where it meets the region the field covers
+(:func:`~pointfield.fields.run.field_extent`), not the training cameras' depth bounds.
 :class:`NerfTask` is this recipe as the one training lifecycle (:mod:`pointfield.training`) runs
 it: checkpoints, resuming, time limit, progress and NaN checks come from there, and its
 "epochs" are rounds of ``eval_every`` steps ending with an evaluation on held-out views
@@ -42,11 +46,12 @@ import torch
 from pointfield.errors import PointfieldError
 from pointfield.fields.field import RayBudget
 from pointfield.fields.ngp import CUDA_OPTIONS
-from pointfield.fields.rays import RayBundle
+from pointfield.fields.rays import RayBundle, SceneExtent
 from pointfield.fields.rendering import distortion_loss
 from pointfield.fields.run import (
     TASK,
     build_field,
+    field_extent,
     identity_of,
     render_field,
 )
@@ -55,17 +60,20 @@ from pointfield.fields.scene_box import (
     scene_bounds,
     steps_a_pixel_allows,
 )
+from pointfield.fields.training_rays import TrainingRays
 from pointfield.metrics import psnr_from_mse
 from pointfield.scenes.heldout import (
     HeldoutEvaluation,
     HeldoutRender,
     depth_bounds,
+    depth_range,
     open_scene_of,
-    ray_bounds,
     scene_config,
     training_and_heldout,
+    training_only_scores,
 )
-from pointfield.scenes.scene import Scene
+from pointfield.scenes.scene import Scene, SceneError
+from pointfield.scenes.training_defaults import choose_scene_defaults
 from pointfield.training import lifecycle
 from pointfield.training.loop import TrainingState
 from pointfield.training.opacity import (
@@ -117,12 +125,23 @@ def default_ngp_options(scene: Scene, scene_box, device: torch.device) -> dict[s
     return chosen
 
 
-def scene_rays(scene: Scene, frames: Sequence[int], device: torch.device) -> tuple[RayBundle, torch.Tensor]:
-    """Every pixel of ``frames`` as one :class:`RayBundle` on ``device``, and its ``(R, 3)`` colours."""
-    bounds = ray_bounds(scene)
-    bundle = RayBundle.cat([RayBundle.of_camera(scene.cameras, int(i), *bounds[int(i)]) for i in frames])
+def scene_rays(scene: Scene, frames: Sequence[int], extent: SceneExtent,
+               device: torch.device) -> tuple[RayBundle, torch.Tensor]:
+    """Every pixel centre of ``frames`` as one :class:`RayBundle` bounded by ``extent``, and the ``(R, 3)`` colours."""
+    bundle = RayBundle.cat([RayBundle.of_camera(scene.cameras, int(i), extent) for i in frames])
     colors = torch.cat([torch.from_numpy(scene.image(int(i)).reshape(-1, 3)) for i in frames])
     return bundle.to(device), colors.to(device)
+
+
+def distortion_scale(scene: Scene, extent: SceneExtent) -> float:
+    """The length the distortion loss measures distances in: the scene's depth range
+    (:func:`~pointfield.scenes.heldout.depth_bounds`, what :data:`BOUNDED_NGP_DISTORTION` was
+    measured with), else, for a scene without bounds, its box's diagonal."""
+    try:
+        near, far = depth_bounds(scene)
+    except SceneError:
+        return extent.diagonal
+    return far - near
 
 
 class NerfTask(Task):
@@ -169,6 +188,7 @@ class NerfTask(Task):
                  on_evaluate: Callable[[dict[str, float], list[HeldoutRender]], None] | None = None):
         super().__init__(config, device, distributed, progress)
         self.on_evaluate = on_evaluate
+        choose_scene_defaults(config, device, say=distributed is None or distributed.is_main)
         self.scene = open_scene_of(config)
         self.train_frames, self.heldout_frames = training_and_heldout(self.scene)
         if config["model"] == "ngp" and "box" not in config["model_options"]:  # a new run: a resume has its box
@@ -178,7 +198,9 @@ class NerfTask(Task):
             bounded = config["model"] == "ngp" and not config["model_options"].get("unbounded", False)
             config["distortion"] = BOUNDED_NGP_DISTORTION if bounded else 0.0
         self.model = self.trained = build_field(config, device)
-        self.rays, self.colors = scene_rays(self.scene, self.train_frames, device)
+        self.extent = field_extent(config, self.scene)
+        self.rays = TrainingRays(self.scene, self.train_frames, self.extent, device)
+        self.colors = self.rays.colors
         self.background = torch.as_tensor(self.scene.background, dtype=torch.float32, device=device)
         # Opacity trained towards the images' alpha where they have it (training/opacity.py).
         self.alpha_loss = alpha_loss_weight(config.get("alpha_loss"), self.scene, self.train_frames, default=0.0)
@@ -193,7 +215,7 @@ class NerfTask(Task):
         if self.random_background:
             self.training_background = torch.full((3,), BACKGROUND_MEAN, device=device)
             self.colors = recomposite(self.colors, self.transparency, self.background, self.training_background)
-        self.near, self.far = depth_bounds(self.scene)
+        self.depth_scale = distortion_scale(self.scene, self.extent)
         # A run made before the distortion loss existed was trained without it, and resumes so.
         self.distortion = float(config.get("distortion", 0.0))
         self.steps_per_epoch = math.ceil(len(self.rays) / config["batch_rays"])
@@ -221,7 +243,7 @@ class NerfTask(Task):
         self.model.warm_up()  # one-time kernel compilation, before the training clock starts
 
     def render(self, cameras) -> list[dict[str, torch.Tensor]]:
-        return [render_field(self.model, cameras, index, self.near, self.far, self.background)
+        return [render_field(self.model, cameras, index, self.extent, self.background)
                 for index in range(len(cameras))]
 
     def batches(self, epoch: int) -> range:
@@ -246,7 +268,7 @@ class NerfTask(Task):
         self.model.before_step(int(step), generator)
         indices = self._rays_of_step(int(step), generator)
         alpha = None if self.transparency is None else 1 - self.transparency[indices]
-        output = self.model(self.rays[indices], self.training_background, jitter=True)
+        output = self.model(self.rays.rays(indices, generator), self.training_background, jitter=True)
         losses = [torch.mean((rendered.color - self.colors[indices]) ** 2) for rendered in output.passes]
         if self.random_background:
             # What the random backgrounds' spread adds to the colour error, in expectation.
@@ -259,7 +281,7 @@ class NerfTask(Task):
         if self.distortion:
             # Each ray's weight drawn into one thin layer; distances in units of the scene's depth range.
             final = output.passes[-1]
-            losses.append(self.distortion * distortion_loss(final.weights, final.samples, self.far - self.near))
+            losses.append(self.distortion * distortion_loss(final.weights, final.samples, self.depth_scale))
         if self.budget is not None:
             self.budget.update(len(indices), output.samples)
             stats.update(rays=float(len(indices)), samples_per_ray=output.samples / max(len(indices), 1))
@@ -267,6 +289,8 @@ class NerfTask(Task):
         return Step(sum(losses), stats, auxiliary)
 
     def evaluate(self, epoch: int) -> dict[str, float]:
+        if not len(self.evaluated):  # --holdout-every 0: the round's training PSNR is the score
+            return {}
         keep = self.on_evaluate is not None
         scores, renders = self.heldout.during(self.render, keep_renders=keep)
         finished = min((epoch + 1) * self.round_steps, self.config["steps"])
@@ -283,8 +307,11 @@ class NerfTask(Task):
 
     def finish(self, run: RunDirectory, state: TrainingState) -> dict[str, Any]:
         """Score every held-out view (as many as the time budget holds); save their renders beside the truth."""
+        if not len(self.heldout_frames):
+            return {**training_only_scores(state), "steps": state.step, "epochs": state.step / self.steps_per_epoch,
+                    "training_rays": len(self.rays)}
         scores, renders = self.heldout.final(self.render, self.time_budget, self.progress)
-        save_panels(run.path / HELDOUT_DIR, renders, self.near, self.far)
+        save_panels(run.path / HELDOUT_DIR, renders, *depth_range(self.scene, [view for _, view, _ in renders]))
         return {
             **scores,
             "steps": state.step,
@@ -305,7 +332,7 @@ def train(
     max_time: float | None = None,
     max_training_time: float | None = None,
     batch_rays: int = 1024,
-    downscale: int = 1,
+    downscale: int | str = "auto",
     holdout_every: int | None = None,
     background: str | Sequence[float] | None = None,
     random_background: bool | None = None,

@@ -25,7 +25,13 @@ from pointfield.scenes.cameras import (
 )
 from pointfield.scenes.formats import detect_scene_format, read_scene, scene_formats, write_scene
 from pointfield.scenes.scene import Frame, Scene, SceneError
-from pointfield.scenes.synthetic import SYNTHETIC_SCENES, make_scene, render_scene, synthetic_scene
+from pointfield.scenes.synthetic import (
+    SYNTHETIC_SCENES,
+    make_scene,
+    render_scene,
+    synthetic_scene,
+    synthetic_truth,
+)
 from pointfield.scenes.tools import convert_scene, plot_cameras, scene_info
 
 __all__ = [
@@ -49,5 +55,6 @@ __all__ = [
     "scene_formats",
     "scene_info",
     "synthetic_scene",
+    "synthetic_truth",
     "write_scene",
 ]

@@ -2,7 +2,9 @@
 
 Every scene model (TinyNeRF, NeRF, the hash-grid field, Gaussian splats) is trained on the
 "train" split of a scene and scored on its "test" split (else "val", else every N-th training
-view held out with ``holdout_every``). The score is the same for every model, during training,
+view held out with ``holdout_every``: by default every 8th,
+:mod:`pointfield.scenes.training_defaults`; ``holdout_every=0`` holds none out, and the run
+reports its training PSNR only). The score is the same for every model, during training,
 after it and in the benchmarks (:func:`heldout_scores`):
 
 - PSNR: the mean over held-out views of each view's PSNR, ``10 log10(1 / MSE_view)`` with
@@ -21,6 +23,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -66,10 +69,12 @@ def open_scene(
         opened = synthetic_scene("cube", views=cube_views, size=cube_size)
     else:
         opened = read_scene(scene)
-    if int(downscale) != downscale or downscale < 1:
+    if isinstance(downscale, str) or int(downscale) != downscale or downscale < 1:
         raise SceneError(f"--downscale must be a positive integer, got {downscale}")
     opened = opened.downscaled(int(downscale))
-    if holdout_every is not None:
+    if holdout_every == 0:  # nothing held out: training_and_heldout gives no held-out views
+        opened = replace(opened, metadata={**opened.metadata, "holdout_every": 0})
+    elif holdout_every is not None:
         opened = opened.with_holdout(holdout_every)
     if background is not None:
         opened = opened.with_background(background)
@@ -87,7 +92,8 @@ def scene_config(settings: dict[str, Any]) -> dict[str, Any]:
         "scene": None if scene is None else str(Path(scene).resolve()),
         "cube_views": int(settings["cube_views"]),
         "cube_size": int(settings["cube_size"]),
-        "downscale": int(settings["downscale"]),
+        # "auto" until the task knows its device (training_defaults.choose_scene_defaults).
+        "downscale": "auto" if settings["downscale"] == "auto" else int(settings["downscale"]),
         "holdout_every": settings["holdout_every"],
         "background": settings["background"],
     }
@@ -102,7 +108,10 @@ def open_scene_of(config: dict[str, Any]) -> Scene:
 
 
 def training_and_heldout(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """Frame indices to train on and to evaluate on ("test", else "val"), both with images."""
+    """Frame indices to train on and to evaluate on ("test", else "val"), both with images.
+
+    A scene opened with ``holdout_every=0`` and no such split has no held-out views: an empty array.
+    """
     where = scene.metadata.get("path", "scene")
     train_frames = scene.splits.get("train", np.arange(0))
     train_frames = np.array([i for i in train_frames if scene.frames[i].has_image], dtype=np.int64)
@@ -112,10 +121,21 @@ def training_and_heldout(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
         held = np.array([i for i in scene.splits.get(name, []) if scene.frames[i].has_image], dtype=np.int64)
         if len(held):
             return train_frames, held
+    if scene.metadata.get("holdout_every") == 0:
+        return train_frames, np.arange(0, dtype=np.int64)
     raise SceneError(
         f"{where}: no held-out views with images (no test or val split); pass --holdout-every N "
         f"to hold every N-th training view out"
     )
+
+
+def training_only_scores(state: Any) -> dict[str, Any]:
+    """A run without held-out views (``holdout_every=0``): its last round's training PSNR, and no held-out score.
+
+    ``state``: the finished :class:`~pointfield.training.loop.TrainingState`.
+    """
+    last = state.history[-1] if state.history else {}
+    return {"train_psnr": last.get("train_psnr"), "views": 0}
 
 
 def ray_bounds(scene: Scene) -> np.ndarray:

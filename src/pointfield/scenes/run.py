@@ -82,6 +82,9 @@ class SceneRun(Run):
     def evaluate(self) -> dict[str, Any]:
         """PSNR (mean of per-view PSNR) and SSIM on the run's held-out views."""
         _, heldout = training_and_heldout(self.scene)
+        if not len(heldout):
+            raise PointfieldError(f"{self.path}: trained with --holdout-every 0, so it has no held-out views to score; "
+                                  "its training PSNR is in metrics.json")
         # Not median depth: nothing scores it, and with gsplat it costs a second pass.
         render = partial(self.render, outputs=("rgb", "depth", "opacity"))
         scores, _ = heldout_scores(render, self.scene, heldout)

@@ -43,12 +43,16 @@ Written dataset (Blender format, readable by :func:`read_scene`, nerfstudio and 
 where no surface); ``<split>/r_<i>_mask.png`` (255 on surfaces). Every 10th view is "test", every
 10th starting at the 5th is "val" (one each for 3 to 19 views, none below 3). The JSON also holds
 ``near`` / ``far`` (the scene's bounding sphere seen from the camera distance) and ``aabb`` (the
-objects' bounds with room around them, :func:`padded_aabb`).
+objects' bounds with room around them, :func:`padded_aabb`). Beside them, ``synthetic.json``
+(:data:`TRUTH_RECORD`) says which scene it is and how it was rendered, so that its analytic truth
+can be rendered from any camera (:func:`synthetic_truth`): a model trained on it can be scored
+nearer, farther or from a path, not only at the cameras it was given.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 from collections.abc import Callable
@@ -58,6 +62,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from pointfield.atomic import atomic_path
 from pointfield.scenes.cameras import Cameras, look_at, pixel_centers
 from pointfield.scenes.formats import write_scene
 from pointfield.scenes.scene import Frame, Scene, SceneError
@@ -69,6 +74,8 @@ SURFACE_OFFSET = 1e-7
 RAYS_PER_BATCH = 1 << 18
 SUPERSAMPLING = 2
 """Rays per pixel along each image axis (see the module doc)."""
+TRUTH_RECORD = "synthetic.json"
+"""The file :func:`make_scene` writes beside a dataset: ``{"scene": name, "supersampling": k}``."""
 
 CUBE_FACE_COLORS = (
     (0.90, 0.10, 0.10),  # +x red
@@ -475,7 +482,8 @@ def synthetic_scene(
     frames = [Frame(f"r_{i}", image=rgba8[i], depth=depth[i], mask=mask[i]) for i in range(len(cameras))]
     near = max(radius - builder.bounding_radius, 0.05 * radius)
     near_far = np.tile([near, radius + builder.bounding_radius], (len(cameras), 1))
-    metadata = {"path": f"synthetic:{name}", "root": ".", "frames_listed": len(cameras), "layout": layout}
+    metadata = {"path": f"synthetic:{name}", "root": ".", "frames_listed": len(cameras), "layout": layout,
+                "synthetic": {"scene": name, "supersampling": int(supersampling)}}
     return Scene(
         cameras, frames, split_indices(int(views)), None, near_far, padded_aabb(builder.aabb), metadata=metadata
     )
@@ -516,4 +524,46 @@ def make_scene(
     """
     scene = synthetic_scene(name, views, size, layout=layout, radius=radius, camera_angle_x=camera_angle_x,
                             supersampling=supersampling)
-    return write_scene(scene, out, "blender", overwrite=overwrite)
+    written = write_scene(scene, out, "blender", overwrite=overwrite)
+    with atomic_path(Path(written) / TRUTH_RECORD) as record:
+        record.write_text(json.dumps(scene.metadata["synthetic"]) + "\n", encoding="utf-8")
+    return written
+
+
+def synthetic_source(scene: Scene) -> dict:
+    """``{"scene": name, "supersampling": k}`` of a synthetic scene, in memory or as ``make_scene`` wrote it.
+
+    Raises :class:`SceneError` for any other scene: only these have an analytic truth.
+    """
+    if "synthetic" in scene.metadata:
+        return dict(scene.metadata["synthetic"])
+    record = Path(scene.metadata.get("root", ".")) / TRUTH_RECORD
+    where = scene.metadata.get("path", "scene")
+    if not record.is_file():
+        raise SceneError(f"{where}: not a synthetic scene (no {TRUTH_RECORD} beside it, as `scene make` writes)")
+    try:
+        source = json.loads(record.read_text(encoding="utf-8"))
+        name, supersampling = str(source["scene"]), int(source.get("supersampling", SUPERSAMPLING))
+    except (ValueError, KeyError, TypeError) as error:
+        raise SceneError(f"{record}: expected {{\"scene\": name, \"supersampling\": k}} ({error})") from None
+    _scene_named(name)  # an unknown name is refused here, naming the choices
+    return {"scene": name, "supersampling": supersampling}
+
+
+def synthetic_truth(scene: Scene, cameras: Cameras) -> np.ndarray:
+    """What a synthetic ``scene`` looks like through any ``cameras``: float32 ``(N, H, W, 3)`` in [0, 1].
+
+    Rendered by the same tracer, with the same supersampling, as the scene's own images, and
+    composited onto the scene's background as :meth:`Scene.image` composites them: the truth a
+    model's render from those cameras is scored against. The cameras must share one image size.
+
+    Example::
+
+        scene = read_scene("cube-dataset")                       # written by `scene make cube`
+        near = synthetic_cameras(8, 100, radius=0.65 * 4.0)      # nearer than its cameras
+        truth = synthetic_truth(scene, near)                     # (8, 100, 100, 3)
+    """
+    source = synthetic_source(scene)
+    rgba, _, _ = render_scene(source["scene"], cameras, source["supersampling"])
+    alpha = rgba[..., 3:]
+    return (rgba[..., :3] * alpha + scene.background * (1 - alpha)).astype(np.float32)

@@ -63,9 +63,11 @@ from pointfield.scenes.heldout import (
     open_scene_of,
     scene_config,
     training_and_heldout,
+    training_only_scores,
 )
 from pointfield.scenes.paths import scene_centre_and_up
 from pointfield.scenes.scene import Scene
+from pointfield.scenes.training_defaults import choose_scene_defaults
 from pointfield.splats.densification import STRATEGIES, make_strategy
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
 from pointfield.splats.loss import (
@@ -189,6 +191,7 @@ class SplatTask(Task):
 
     def __init__(self, config, device, distributed, progress):
         super().__init__(config, device, distributed, progress)
+        choose_scene_defaults(config, device, say=distributed is None or distributed.is_main)
         self.scene = open_scene_of(config)
         self.train_frames, self.heldout_frames = training_and_heldout(self.scene)
         gaussians = initial_gaussians(self.scene, config["initial_splats"], config["seed"], config.get("init", "auto"))
@@ -308,6 +311,8 @@ class SplatTask(Task):
                              **self.mode)
 
     def evaluate(self, epoch: int) -> dict[str, float]:
+        if not len(self.evaluated):  # --holdout-every 0: the round's training PSNR is the score
+            return {"splats": len(self.model)}
         scores, _ = self.heldout.during(self.render)
         return {"psnr": scores["psnr"], "opacity_error": scores["opacity_error"], "splats": len(self.model)}
 
@@ -319,6 +324,8 @@ class SplatTask(Task):
     def finish(self, run: RunDirectory, state: TrainingState) -> dict[str, Any]:
         if self.config.get("mip"):
             self._refresh_smoothing()  # for the final means, as a loaded run computes it
+        if not len(self.heldout_frames):
+            return {**training_only_scores(state), "splats": len(self.model), "steps": state.step}
         scores, renders = self.heldout.final(self.render, self.time_budget, self.progress)
         near, far = depth_range(self.scene, [view for _, view, _ in renders])
         save_panels(run.path / HELDOUT_DIR, renders, near, far)
@@ -335,7 +342,7 @@ def train(
     steps: int | None = None,
     max_time: float | None = None,
     max_training_time: float | None = None,
-    downscale: int = 1,
+    downscale: int | str = "auto",
     holdout_every: int | None = None,
     background: str | None = None,
     alpha_loss: float | None = None,

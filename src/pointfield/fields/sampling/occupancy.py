@@ -15,22 +15,7 @@ import torch
 from torch import nn
 
 from pointfield.compiling import CompiledOrEager
-from pointfield.fields.rays import RayBundle, RaySamples
-
-
-def ray_box_intersection(
-    origins: torch.Tensor, directions: torch.Tensor, box: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Distances ``(R,)`` at which rays enter and leave the ``(2, 3)`` box (slab method).
-
-    A ray that misses gets ``enter >= leave``.
-    """
-    safe = torch.where(directions.abs() < 1e-12, torch.full_like(directions, 1e-12), directions)
-    t_low = (box[0] - origins) / safe
-    t_high = (box[1] - origins) / safe
-    enter = torch.minimum(t_low, t_high).amax(dim=-1)
-    leave = torch.maximum(t_low, t_high).amin(dim=-1)
-    return enter, leave
+from pointfield.fields.rays import RayBundle, RaySamples, ray_box_intersection
 
 
 class OccupancyGrid(nn.Module):
