@@ -70,3 +70,26 @@ def test_auto_downscale_of_a_scene_without_images_says_so_in_one_line():
     with pytest.raises(SceneError, match="--downscale auto .* has none") as caught:
         auto_downscale(sized(800, 800, images=False), torch.device("cpu"))
     assert "\n" not in str(caught.value)
+
+
+@pytest.fixture(scope="module")
+def posed_photos_16(tmp_path_factory):
+    """Sixteen 16 x 16 views with no test or val split (splats' SSIM needs 11 x 11 at least)."""
+    scene = synthetic_scene("cube", views=16, size=16)
+    scene = replace(scene, splits={"train": np.arange(16)})
+    return write_scene(scene, tmp_path_factory.mktemp("photos16") / "cube", "blender")
+
+
+@pytest.mark.parametrize("command", [
+    ["nerf", "train", "--model", "tiny", "--batch-rays", "64", "--steps", "2", "--eval-every", "2"],
+    ["splat", "train", "--steps", "2", "--eval-every", "2"],
+])
+def test_the_command_closes_with_the_training_psnr_of_a_run_without_held_out_views(posed_photos_16, tmp_path,
+                                                                                   capsys, command):
+    from pointfield.cli import main
+
+    out = tmp_path / "run"
+    assert main([*command, str(posed_photos_16), "--out", str(out), "--holdout-every", "0", "--device", "cpu",
+                 "--no-progress"]) == 0
+    closing = capsys.readouterr().out.strip().splitlines()[-1]
+    assert "training PSNR" in closing and "no held-out views" in closing and "held-out PSNR" not in closing
