@@ -16,6 +16,7 @@ from pointfield.cli.geometry_options import (
     add_cloud_options,
     export_geometry_of,
     opacity_error_text,
+    refuse_existing,
 )
 from pointfield.cli.view import add_view_options, training_view
 
@@ -159,6 +160,7 @@ def run_export(args: argparse.Namespace) -> int:
 
     if args.cloud is None and args.mesh is None:
         raise PointfieldError("nerf export needs --cloud OUT or --mesh OUT")
+    refuse_existing(args, "mesh", "cloud")
     export_geometry_of(args)
     return 0
 
