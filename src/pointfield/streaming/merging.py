@@ -25,6 +25,7 @@ from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats import formats
 from pointfield.errors import PointfieldError
 from pointfield.streaming import distributed
+from pointfield.streaming.chunks import StreamingFallback
 from pointfield.streaming.jobs import output_done, progress_bar, streaming_job, summary
 from pointfield.streaming.memory import DEFAULT_MEMORY, plan
 from pointfield.streaming.select import keep_all, select_to_file
@@ -124,11 +125,13 @@ def convert_task(source: str, out: str, encoding: str | None, points: int, colum
     """Convert one file (a task of :func:`convert_folder`); a bad file is reported, not raised."""
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            return convert(source, out, encoding=encoding, points=points, columns=columns, overwrite=overwrite)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = convert(source, out, encoding=encoding, points=points, columns=columns, overwrite=overwrite)
     except PointfieldError as error:
         return {"source": source, "error": str(error)}
+    # A task's warnings would be lost on a worker: the files read or written whole go back with the result.
+    return {**result, "whole": [str(w.message) for w in caught if issubclass(w.category, StreamingFallback)]}
 
 
 def convert_folder(
@@ -180,6 +183,10 @@ def convert_folder(
     with distributed.cluster(workers, scheduler, client) as dask_client, \
             progress_bar(len(jobs), f"convert {folder.name}", progress, "file") as bar:
         results = distributed.run_tasks(dask_client, convert_task, jobs, bar)
+    whole = [message for r in results for message in r.get("whole", ())]
+    if whole:
+        warnings.warn(f"{len(whole)} of the files could not be streamed and were held whole in memory "
+                      f"(first: {whole[0]})", StreamingFallback, stacklevel=2)
     failed = [r for r in results if "error" in r]
     if failed:
         raise PointfieldError(
