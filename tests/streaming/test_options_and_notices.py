@@ -3,6 +3,7 @@ a ``--random`` above the point count says so, and formats are named once ("las",
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 import pointfield
@@ -46,3 +47,21 @@ def test_the_command_names_a_format_once(tmp_path, data, capsys):
     assert main(["cloud", "info", str(data["laz"]), "--stats", "--no-progress"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert "format      las, laz" in lines and not any("las laz" in line for line in lines)
+
+
+def test_merging_buffered_tiles_with_drop_buffers_gives_every_point_once(tmp_path, data, capsys):
+    assert main(["cloud", "tile", str(data["laz"]), str(tmp_path / "tiles"), "--size", "25", "--buffer", "2",
+                 "--no-progress"]) == 0
+    tiles = sorted(str(p) for p in (tmp_path / "tiles").glob("*.laz"))
+    original = pointfield.read(data["laz"])
+    assert main(["cloud", "merge", *tiles, str(tmp_path / "twice.laz"), "--no-progress"]) == 0
+    assert len(pointfield.read(tmp_path / "twice.laz")) > len(original)  # the buffers, once per tile
+    assert main(["cloud", "merge", *tiles, str(tmp_path / "once.laz"), "--drop-buffers", "--no-progress"]) == 0
+    once = pointfield.read(tmp_path / "once.laz")
+    assert len(once) == len(original)
+    assert np.array_equal(np.unique(once.fields["gps_time"]), np.unique(original.fields["gps_time"]))
+
+
+def test_drop_buffers_needs_the_tiles_manifest(tmp_path, data, capsys):
+    assert main(["cloud", "merge", str(data["laz"]), str(tmp_path / "x.laz"), "--drop-buffers"]) == 1
+    assert "--drop-buffers needs the tiles.json" in capsys.readouterr().err
