@@ -69,8 +69,11 @@ SHORT = {
     ("nerf", "exercise"): {"--epochs": "1"},
     ("nerf", "render"): {"--frames": "2"},
     ("splat", "render"): {"--frames": "2"},
-    ("nerf", "export"): {"--resolution": "32", "--points": "2000", "--faces": "2000", "--frames": "4"},
-    ("splat", "export"): {"--resolution": "32", "--points": "2000", "--faces": "2000", "--frames": "4"},
+    # A model trained for seconds is faint: pixels count from a lower opacity than a trained model needs.
+    ("nerf", "export"): {"--resolution": "32", "--points": "2000", "--faces": "2000", "--frames": "4",
+                         "--min-opacity": "0.05"},
+    ("splat", "export"): {"--resolution": "32", "--points": "2000", "--faces": "2000", "--frames": "4",
+                          "--min-opacity": "0.05"},
     ("scene", "make"): {"--views": "8", "--size": "16"},
     ("scene", "convert"): {"--downscale": "8"},
     ("scene", "from-images"): {"--max-size": "400"},
@@ -79,6 +82,8 @@ SHORT = {
 and ``--faces`` are only replaced where the page gives them (they change what is written, not
 how long it takes to start); the rest are always set."""
 ONLY_IF_GIVEN = {"--points", "--faces", "--shapes-per-class"}
+DENSITY = {"--threshold": "0.1"}
+"""A field trained for seconds is thin: its density reaches a tenth, not instant-ngp's level (2.5 / the box side)."""
 ONLY_WITHOUT_DATA = {("classify", "train"): {"--shapes-per-class": "4"}}
 
 NOT_RUN = {
@@ -112,6 +117,8 @@ def shortened(argv: list[str]) -> list[str]:
     positional = [a for a in argv[2:] if not a.startswith("-")]
     if verb in ONLY_WITHOUT_DATA and not any(Path(a).exists() and Path(a).is_dir() for a in positional):
         settings.update(ONLY_WITHOUT_DATA[verb])
+    if "density" in argv:
+        settings.update(DENSITY)
     argv = list(argv)
     for option, value in settings.items():
         if option in argv:
