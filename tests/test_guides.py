@@ -29,6 +29,7 @@ Whole, on an idle 2-core CPU, this is meant to take about two minutes.
 from __future__ import annotations
 
 import glob
+import json
 import re
 import shlex
 from pathlib import Path
@@ -96,10 +97,16 @@ NOT_RUN = {
 
 
 def page_commands(page: str) -> list[str]:
-    """Every command line of the page's shell blocks, in order, ``$ `` prompts removed."""
+    """Every command line of the page's shell blocks, in order: each line of an ``sh`` block, the
+    ``$ `` lines of a ``console`` block (the others are the output it shows)."""
     text = (ROOT / page).read_text(encoding="utf-8")
-    blocks = re.findall(r"```(?:sh|bash|console|shell)\n(.*?)```", text, flags=re.DOTALL)
-    lines = [line.strip().removeprefix("$ ").strip() for block in blocks for line in block.splitlines()]
+    lines = []
+    for kind, block in re.findall(r"```(sh|bash|shell|console)\n(.*?)```", text, flags=re.DOTALL):
+        for line in block.splitlines():
+            line = line.strip()
+            if kind == "console":
+                line = line[2:] if line.startswith("$ ") else ""
+            lines.append(line)
     return [line for line in lines if line and not line.startswith("#")]
 
 
@@ -129,11 +136,12 @@ def shortened(argv: list[str]) -> list[str]:
 
 
 def expanded(argv: list[str]) -> list[str]:
-    """Shell globs (``tiles/*.laz``) expanded, as the shell would."""
+    """Shell globs (``tiles/*.laz``) expanded, as the shell would; a ``--pattern`` is quoted on the
+    pages (``'*.bin'``) and left to pointfield."""
     out = []
-    for arg in argv:
-        matches = sorted(glob.glob(arg)) if any(c in arg for c in "*?[") and not arg.startswith("-") else []
-        out += matches or [arg]
+    for previous, arg in zip(["", *argv[:-1]], argv, strict=True):
+        pattern = any(c in arg for c in "*?[") and not arg.startswith("-") and previous != "--pattern"
+        out += (sorted(glob.glob(arg)) if pattern else []) or [arg]
     return out
 
 
@@ -154,8 +162,8 @@ def make_inputs(work: Path, shared_data: Path) -> None:
     middle, quarter = (low + high) / 2, (high - low) / 4
     ring = [[middle[0] - quarter[0], middle[1] - quarter[1]], [middle[0] + quarter[0], middle[1] - quarter[1]],
             [middle[0], middle[1] + quarter[1]], [middle[0] - quarter[0], middle[1] - quarter[1]]]
-    (work / "park.geojson").write_text(
-        '{"type": "Polygon", "coordinates": [' + str(ring) + "]}", encoding="utf-8")
+    polygon = {"type": "Polygon", "coordinates": [[[float(x), float(y)] for x, y in ring]]}
+    (work / "park.geojson").write_text(json.dumps(polygon), encoding="utf-8")
     pointfield.write(work / "a.ply", PointCloud(rng.normal(size=(200, 3)).astype(np.float32)))
 
 
