@@ -23,7 +23,12 @@ What the test changes, and why:
   (it is the set-up itself), ``view`` and ``--view`` (a server until Ctrl-C; tests/viewer drive
   it in a browser), ``scene from-video`` (no video clip in the test data).
 
-Whole, on an idle 2-core CPU, this is meant to take about two minutes.
+Time: the training and rendering commands set it. Measured only on a shared 2-core machine with
+a load average above 20 (eight sessions at once), so slower than a quiet one: the README page took
+about 20 minutes there (its twelve trainings and exports), docs/photos.md 175 s (SfM on 6 photos
+and two trainings), docs/streaming.md and docs/cameras.md 7 s together. On an idle 2-core CPU it
+is expected to be several times faster, but it has not been measured there; the two-minute aim
+of issue 48 is not shown to be met.
 """
 
 from __future__ import annotations
