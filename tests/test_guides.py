@@ -25,7 +25,7 @@ What the test changes, and why:
 
 Time: the training and rendering commands set it. Measured only on a shared 2-core machine with
 a load average above 20 (eight sessions at once), so slower than a quiet one: the README page took
-about 20 minutes there (its twelve trainings and exports), docs/photos.md 175 s (SfM on 6 photos
+12 to 20 minutes there (its trainings, exports and renders), docs/photos.md 175 s (SfM on 6 photos
 and two trainings), docs/streaming.md and docs/cameras.md 7 s together. On an idle 2-core CPU it
 is expected to be several times faster, but it has not been measured there; the two-minute aim
 of issue 48 is not shown to be met.
