@@ -10,7 +10,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "src" / "pointfield"
 ROOT_MODULES = {
-    "__init__", "__main__", "atomic", "compiling", "devices", "errors", "metrics", "runs", "version",
+    "__init__", "__main__", "atomic", "classify", "compiling", "devices", "errors", "metrics", "runs", "segment",
+    "version",
 }
 
 

@@ -19,16 +19,19 @@ from pointfield.streaming import read_chunks
 from pointfield.version import __version__
 
 # The learning half needs torch, and registration scipy; they are imported on first use so that
-# reading a cloud stays quick.
-_LEARNING = {"load_run": "pointfield.runs", "classify": "pointfield.clouds.run", "segment": "pointfield.clouds.run",
-             "register": "pointfield.registration"}
+# reading a cloud stays quick. pointfield.classify and pointfield.segment are modules of their own
+# (``import pointfield.classify``).
+_LEARNING = {"load_run": "pointfield.runs", "register": "pointfield.registration"}
+_MODULES = ("classify", "segment")
 
 
 def __getattr__(name: str) -> Any:
-    if name in _LEARNING:
-        import importlib
+    import importlib
 
+    if name in _LEARNING:
         return getattr(importlib.import_module(_LEARNING[name]), name)
+    if name in _MODULES:
+        return importlib.import_module(f"pointfield.{name}")
     raise AttributeError(f"module 'pointfield' has no attribute {name!r}")
 
 

@@ -33,3 +33,8 @@ class FormatError(PointfieldError, ValueError):
         self.path = os.fspath(path)
         self.reason = message
         super().__init__(f"{self.path}: {message}")
+
+
+class OptionError(PointfieldError, ValueError):
+    """An option's value cannot be used (``--memory lots``, a budget below the minimum); the message
+    names the option, the value given and what was expected."""

@@ -72,7 +72,7 @@ def test_the_command_prints_a_writers_warning_as_one_line(splat_run, tmp_path, c
     # with no source file and line of pointfield's code.
     assert main(["splat", "export", str(splat_run), "--centres", str(tmp_path / "centres.las")]) == 0
     err = capsys.readouterr().err
-    assert "pointfield: warning: LAS changes these fields: colors uint8 -> uint16" in err
+    assert f"pointfield: warning: {tmp_path / 'centres.las'}: LAS changes these fields: colors uint8 -> uint16" in err
     assert "UserWarning" not in err and ".py:" not in err
 
 

@@ -38,7 +38,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "cloud",
         help="inspect, convert and render point-cloud files",
         description="Inspect, convert and render point-cloud and mesh files in any supported "
-        "format (PLY, PCD, XYZ/TXT/PTS, PTX, NPY/NPZ, OFF, LAS/LAZ, velodyne .bin, E57).",
+        "format (PLY, PCD, XYZ/TXT/PTS, PTX, NPY/NPZ, OFF, OBJ, STL, GLB/glTF, LAS/LAZ, velodyne .bin, E57).",
     )
     commands = group.add_subparsers(dest="command", metavar="SUBCOMMAND", required=True)
 
@@ -161,7 +161,7 @@ def run_info(args: argparse.Namespace) -> int:
 
 def run_convert(args: argparse.Namespace) -> int:
     import pointfield
-    from pointfield.clouds.summary import describe
+    from pointfield.clouds.summary import describe, format_and_encoding
 
     if args.source.is_dir() or cloud_streaming.wants_streaming(args):
         return cloud_streaming.run_streaming_convert(args)
@@ -172,7 +172,7 @@ def run_convert(args: argparse.Namespace) -> int:
     fields = ", ".join(written["fields"]) or "none"
     faces = f", {written['faces']:,} faces" if written["faces"] else ""
     print(
-        f"wrote {args.destination}: {written['format']} {written['encoding']}, "
+        f"wrote {args.destination}: {format_and_encoding(written['format'], written['encoding'])}, "
         f"{written['points']:,} points{faces}, fields: {fields} ({written['bytes']:,} bytes)"
     )
     return 0

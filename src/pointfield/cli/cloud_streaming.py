@@ -133,6 +133,9 @@ def add_commands(commands: argparse._SubParsersAction) -> None:
     )
     merge.add_argument("sources", type=Path, nargs="+", metavar="IN")
     merge.add_argument("destination", type=Path, metavar="OUT")
+    merge.add_argument("--drop-buffers", action="store_true",
+                       help="the inputs are tiles of `cloud tile --buffer`: keep each tile's own square only, "
+                       "so that every point comes once (default: the buffers' points once per tile)")
     _add_output_options(merge)
     merge.set_defaults(run=run_merge)
 
@@ -187,7 +190,7 @@ def run_tile(args: argparse.Namespace) -> int:
 
 def run_merge(args: argparse.Namespace) -> int:
     result = streaming.merge(args.sources, args.destination, encoding=args.encoding, columns=args.columns,
-                             **scale_options(args))
+                             drop_buffers=args.drop_buffers, **scale_options(args))
     return _report(args, result, f"wrote {args.destination}: {result.get('output_points', 0):,} points "
                    f"from {len(args.sources)} files")
 

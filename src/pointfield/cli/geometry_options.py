@@ -39,7 +39,24 @@ def add_cloud_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--outlier-neighbours", type=int, default=16,
                         help="drop points far from their N nearest, statistically (default 16; 0 keeps all)")
     parser.add_argument("--device", help="auto (default), cpu, cuda, cuda:N or mps")
+    parser.add_argument("--overwrite", action="store_true", help="replace output files that exist (default: refuse)")
     parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+
+
+def refuse_existing(args: argparse.Namespace, *outputs: str) -> None:
+    """Stop before any work when two of ``outputs`` (attributes of ``args``) name one file, or when one
+    exists and ``--overwrite`` was not given, as ``scene from-images`` and the streaming verbs do: two exports naming one file (the splats
+    and then a mesh as ``lego.ply``) must not leave the second where the first was expected."""
+    from pointfield.errors import PointfieldError
+
+    named = [Path(path) for path in (getattr(args, name, None) for name in outputs) if path is not None]
+    if len({path.resolve() for path in named}) < len(named):
+        raise PointfieldError(f"one file is named for two outputs ({', '.join(map(str, named))}); give each its own")
+    if args.overwrite:
+        return
+    for path in named:
+        if path.exists():
+            raise PointfieldError(f"{path} already exists; choose another name or pass --overwrite to replace it")
 
 
 def export_geometry_of(args: argparse.Namespace) -> None:

@@ -15,6 +15,7 @@ from pointfield.cli.geometry_options import (
     add_cloud_options,
     export_geometry_of,
     opacity_error_text,
+    refuse_existing,
 )
 from pointfield.cli.scene_options import add_scene_training_options
 from pointfield.cli.training_options import add_max_time_option, clock_text, max_time_left, scores_text
@@ -160,6 +161,7 @@ def run_export(args: argparse.Namespace) -> int:
 
     if args.cloud is None and args.mesh is None:
         raise PointfieldError("nerf export needs --cloud OUT or --mesh OUT")
+    refuse_existing(args, "mesh", "cloud")
     export_geometry_of(args)
     return 0
 

@@ -14,6 +14,7 @@ from pointfield.cli.geometry_options import (
     add_cloud_options,
     export_geometry_of,
     opacity_error_text,
+    refuse_existing,
 )
 from pointfield.cli.scene_options import add_scene_training_options
 from pointfield.cli.training_options import add_max_time_option, clock_text, max_time_left, scores_text
@@ -157,6 +158,7 @@ def run_export(args: argparse.Namespace) -> int:
 
     if args.out is None and args.centres is None and args.cloud is None and args.mesh is None:
         raise PointfieldError("splat export needs --out (splats), --centres, --cloud or --mesh")
+    refuse_existing(args, "out", "centres", "mesh", "cloud")
     if args.out is not None:
         result = export(args.run_dir, args.out)
         print(f"wrote {result['splats']:,} splats (SH degree {result['sh_degree']}) to {result['out']}")

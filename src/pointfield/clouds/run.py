@@ -5,10 +5,10 @@
 ``pointfield classify|segment predict``   :func:`predict` (:meth:`CloudRun.predict`)
 ========================================  ==============================================
 
-``pointfield.classify`` and ``pointfield.segment`` are :func:`~pointfield.clouds.tasks.train`,
+The modules ``pointfield.classify`` and ``pointfield.segment`` are :func:`~pointfield.clouds.tasks.train`,
 :func:`evaluate` and :func:`predict` with the task filled in::
 
-    import pointfield
+    import pointfield.classify
     metrics = pointfield.classify.train(model="pointnet", epochs=20, out="runs/shapes")
     for answer in pointfield.classify.predict("runs/shapes", ["scan.ply"]):
         print(answer["file"], answer["class"], answer["probability"])
@@ -20,12 +20,10 @@ the same file with its points shuffled get the same answer.
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -36,7 +34,6 @@ from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.datasets import PART_LABEL_FIELD, CloudCollate
 from pointfield.clouds.formats import read, write
 from pointfield.clouds.mesh import Mesh
-from pointfield.clouds.scene_tasks import train_scenes
 from pointfield.clouds.tasks import (
     build_cloud_model,
     check_not_empty,
@@ -47,7 +44,6 @@ from pointfield.clouds.tasks import (
     open_data,
     per_class_scores,
     scores_of,
-    train,
 )
 from pointfield.errors import FormatError, PointfieldError
 from pointfield.training.lifecycle import open_run as open_trained
@@ -239,22 +235,6 @@ def predict(
 ) -> list[dict[str, Any]]:
     """Apply a trained run to files (see :meth:`CloudRun.predict`)."""
     return open_run(task, run, device).predict(files, out=out)
-
-
-classify = SimpleNamespace(
-    train=functools.partial(train, "classify", out="runs/classify"),
-    evaluate=functools.partial(evaluate, "classify"),
-    predict=functools.partial(predict, "classify"),
-)
-"""``pointfield classify train|eval|predict`` as Python: ``pointfield.classify.train(...)``."""
-segment = SimpleNamespace(
-    train=functools.partial(train, "segment", out="runs/segment"),
-    evaluate=functools.partial(evaluate, "segment"),
-    predict=functools.partial(predict, "segment"),
-    train_scenes=train_scenes,
-)
-"""``pointfield segment train|eval|predict`` as Python: ``pointfield.segment.train(...)``; on whole scans
-``pointfield.segment.train_scenes([DATA...], out=...)``, whose run ``pointfield.load_run`` opens."""
 
 
 def _with_field(data: PointCloud, name: str, values: np.ndarray) -> PointCloud:

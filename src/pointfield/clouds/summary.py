@@ -102,7 +102,7 @@ def format_description(info: dict[str, Any]) -> str:
     """
     rows: list[tuple[str, str]] = [
         ("file", f"{info['path']} ({info['bytes']:,} bytes)"),
-        ("format", _format_and_encoding(info["format"], info["encoding"])),
+        ("format", format_and_encoding(info["format"], info["encoding"])),
     ]
     if info["kind"] == "records":
         rows.append(("records", f"{info['points']:,} (no x/y/z coordinates)"))
@@ -157,7 +157,9 @@ def _bounds_text(bounds: dict[str, list[float]] | None, dtype: str) -> str:
     )
 
 
-def _format_and_encoding(name: str | None, encoding: str | None) -> str:
+def format_and_encoding(name: str | None, encoding: str | None) -> str:
+    """``"ply, ascii"``, ``"las, laz"``; the encoding alone is left out where it repeats the
+    format's name (``"las"``, not ``"las las"``)."""
     if encoding and encoding != name:
         return f"{name}, {encoding}"
     return str(name)

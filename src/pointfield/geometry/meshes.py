@@ -15,7 +15,7 @@
 4. Drop floating pieces: connected components with fewer than ``min_component`` of the faces.
 5. Optionally decimate to ``faces`` triangles (fast-simplification, quadric error), colours
    carried over from the nearest original vertex.
-6. Write PLY or OFF (pointfield's writers), OBJ or GLB (trimesh), atomically.
+6. Write PLY or OFF (pointfield's writers), OBJ, STL or GLB (trimesh), atomically, by the format registry.
 
 ``method="density"`` replaces steps 1 to 3 for a bounded field run: marching cubes on the field's
 density itself, the training views rendered coarsely only to fill what they do not see
@@ -42,7 +42,7 @@ from pointfield.geometry.density import (
 )
 from pointfield.geometry.tsdf import TSDFVolume, fuse, grid_shape
 
-MESH_SUFFIXES = (".ply", ".off", ".obj", ".glb")
+MESH_SUFFIXES = (".ply", ".off", ".obj", ".glb", ".stl")
 MESH_METHODS = ("tsdf", "density")
 """``--method``: fuse rendered depth (any scene run), or marching cubes on a bounded field's density."""
 DEFAULT_MEMORY_FRACTION = 0.5
@@ -99,24 +99,15 @@ def decimate(mesh: Mesh, faces: int) -> Mesh:
 
 
 def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
-    """PLY / OFF through pointfield's writers; OBJ / GLB through trimesh. Atomic either way."""
+    """PLY / OFF through pointfield's writers, OBJ / STL / GLB through trimesh, all by the format
+    registry (so what is written here reads back with :func:`pointfield.read`). Atomic either way."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in MESH_SUFFIXES:
         raise PointfieldError(f"{path}: a mesh is written as {', '.join(MESH_SUFFIXES)}, not {suffix or 'no suffix'}")
-    if suffix in (".ply", ".off"):
-        from pointfield.clouds.formats.registry import write
+    from pointfield.clouds.formats.registry import write
 
-        write(path, mesh)
-        return
-    import trimesh
-
-    from pointfield.atomic import atomic_path
-
-    colours = mesh.fields.get("colors")
-    shape = trimesh.Trimesh(mesh.points, mesh.faces, vertex_colors=colours, process=False)
-    with atomic_path(path) as temporary:
-        shape.export(temporary, file_type=suffix[1:])
+    write(path, mesh)
 
 
 def export_mesh(

@@ -8,7 +8,8 @@ Three rules, one per keyword:
   (``mode="nearest"``, every field of that point). See :mod:`pointfield.streaming.voxels` for
   why the chunked result equals the in-memory one bit for bit.
 - ``random=N``: N points drawn uniformly without replacement (seeded), kept in file order
-  (:func:`random_sample` is the in-memory reference).
+  (:func:`random_sample` is the in-memory reference); N above the file's count keeps every point,
+  with a warning.
 - ``every=K``: points 0, K, 2K, ... of the file.
 
 Memory: ``memory`` (``"2G"``) bounds the resident size of the job; chunks and the voxel state
@@ -20,6 +21,7 @@ from __future__ import annotations
 import itertools
 import os
 import tempfile
+import warnings
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -94,6 +96,9 @@ def downsample(
                 raise PointfieldError(f"voxel must be positive, got {voxel}")
             written = _voxel(job, Path(out), float(voxel), mode, encoding)
         else:
+            if random is not None and random > job.source.count:
+                warnings.warn(f"{source}: random={random:,} is more than its {job.source.count:,} points; "
+                              f"all of them are kept", stacklevel=2)
             select = _every_rule(every) if every is not None else _random_rule(job.source.count, random, seed)
             written = select_to_file(job, Path(out), select, encoding, "downsample")
     return summary(source=source, out=out, input_points=job.source.count, output_points=written, skipped=False)

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import psutil
 
+from pointfield.errors import OptionError
+
 DEFAULT_MEMORY = "1G"
 MIN_MEMORY = 256 << 20
 # numpy, laspy, pointfield: the resident size of an interpreter before it reads anything.
@@ -46,7 +48,7 @@ def parse_memory(text: str | int) -> int:
         return text
     match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([kKmMgGtT]?)(?:i?[bB])?\s*", str(text))
     if match is None:
-        raise ValueError(f"memory {text!r}: expected a size such as 2G, 512M or 1.5GB")
+        raise OptionError(f"--memory {text!r}: expected a size such as 2G, 512M or 1.5GB")
     return int(float(match.group(1)) * _UNITS[match.group(2).lower()])
 
 
@@ -68,7 +70,7 @@ def plan(budget: int | str, bytes_per_point: int, chunk_points: int | None = Non
     """
     budget = parse_memory(budget)
     if budget < MIN_MEMORY:
-        raise ValueError(f"memory budget {budget >> 20} MiB is too small; give at least 256M")
+        raise OptionError(f"--memory {budget >> 20} MiB is too small to hold the interpreter; give at least 256M")
     baseline = max(BASELINE_BYTES, resident_bytes())
     usable = max(budget - baseline, budget // 4)
     if chunk_points is None:

@@ -13,6 +13,7 @@ and outputs that exist are skipped (they are complete: every file is written ato
 
 from __future__ import annotations
 
+import json
 import os
 import warnings
 from functools import partial
@@ -25,9 +26,11 @@ from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats import formats
 from pointfield.errors import PointfieldError
 from pointfield.streaming import distributed
+from pointfield.streaming.chunks import StreamingFallback
 from pointfield.streaming.jobs import output_done, progress_bar, streaming_job, summary
 from pointfield.streaming.memory import DEFAULT_MEMORY, plan
 from pointfield.streaming.select import keep_all, select_to_file
+from pointfield.streaming.tiling import MANIFEST
 
 
 def common_layout(templates: list[PointCloud]) -> tuple[np.dtype, dict[str, np.dtype], list[str]]:
@@ -82,13 +85,18 @@ def merge(
     progress: bool = False,
     columns: int | None = None,
     what: str = "merge",
+    drop_buffers: bool = False,
 ) -> dict[str, Any]:
     """Concatenate ``sources`` into ``out``, chunk by chunk (module docstring).
 
-    Options as :func:`~pointfield.streaming.downsample`. Returns a summary.
+    ``drop_buffers``: the sources are tiles that ``tile`` cut with a buffer; each keeps only the
+    points of its own square (found in the ``tiles.json`` beside it), so that merging every tile
+    gives each point once, in tile order. Without it the buffers' points come once per tile that
+    holds them. Other options as :func:`~pointfield.streaming.downsample`. Returns a summary.
     """
     if not sources:
         raise PointfieldError("merge needs at least one input")
+    cores = [tile_core(Path(source)) for source in sources] if drop_buffers else None
     names = [str(s) for s in sources]
     if output_done(out, overwrite):
         return summary(sources=names, out=out, skipped=True)
@@ -98,9 +106,36 @@ def merge(
         if dropped:
             warnings.warn(f"fields not in every input are left out of the merge: {', '.join(dropped)}", stacklevel=2)
         rule = keep_all if len(sources) == 1 else partial(conform, points_dtype, fields)
+        if cores is not None:
+            rule = [partial(keep_core, core, rule) for core in cores]
         written = select_to_file(job, Path(out), rule, encoding, what)
     return summary(sources=names, out=out, input_points=sum(s.count for s in job.sources),
                    output_points=written, skipped=False)
+
+
+def tile_core(path: Path) -> tuple[float, float, float, int, int]:
+    """``(origin x, origin y, size, i, j)`` of tile file ``path``, from the ``tiles.json`` beside it."""
+    manifest = path.parent / MANIFEST
+    try:
+        document = json.loads(manifest.read_text(encoding="utf-8"))
+        settings = document["settings"]
+        (entry,) = [t for t in document["tiles"] if t["file"] == path.name]
+        origin, size, (i, j) = settings["origin"], float(settings["size"]), entry["tile"]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise PointfieldError(f"{path}: --drop-buffers needs the {MANIFEST} that `cloud tile` wrote beside the "
+                              f"tile, listing it") from None
+    return float(origin[0]), float(origin[1]), size, int(i), int(j)
+
+
+def keep_core(core: tuple[float, float, float, int, int], rule: Any, cloud: PointCloud,
+              index: np.ndarray) -> PointCloud:
+    """The rule of ``merge --drop-buffers``: the points of the tile's own square (by
+    :func:`~pointfield.streaming.tiling.tile_memberships`' arithmetic, so each point is in exactly
+    one tile's square), then ``rule``."""
+    ox, oy, size, i, j = core
+    square = np.floor((cloud.points[:, :2].astype(np.float64) - [ox, oy]) / size)
+    keep = (square[:, 0] == i) & (square[:, 1] == j)
+    return rule(cloud.select(keep), index[keep])
 
 
 def convert(source: str | os.PathLike[str], out: str | os.PathLike[str], **options: Any) -> dict[str, Any]:
@@ -124,11 +159,13 @@ def convert_task(source: str, out: str, encoding: str | None, points: int, colum
     """Convert one file (a task of :func:`convert_folder`); a bad file is reported, not raised."""
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            return convert(source, out, encoding=encoding, points=points, columns=columns, overwrite=overwrite)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = convert(source, out, encoding=encoding, points=points, columns=columns, overwrite=overwrite)
     except PointfieldError as error:
         return {"source": source, "error": str(error)}
+    # A task's warnings would be lost on a worker: the files read or written whole go back with the result.
+    return {**result, "whole": [str(w.message) for w in caught if issubclass(w.category, StreamingFallback)]}
 
 
 def convert_folder(
@@ -180,6 +217,10 @@ def convert_folder(
     with distributed.cluster(workers, scheduler, client) as dask_client, \
             progress_bar(len(jobs), f"convert {folder.name}", progress, "file") as bar:
         results = distributed.run_tasks(dask_client, convert_task, jobs, bar)
+    whole = [message for r in results for message in r.get("whole", ())]
+    if whole:
+        warnings.warn(f"{len(whole)} of the files could not be streamed and were held whole in memory "
+                      f"(first: {whole[0]})", StreamingFallback, stacklevel=2)
     failed = [r for r in results if "error" in r]
     if failed:
         raise PointfieldError(

@@ -9,7 +9,7 @@ sources and writes the result, in order, to one file.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -47,37 +47,39 @@ def writer_bounds(sources: list[ChunkSource]) -> tuple[np.ndarray, np.ndarray] |
     return (low, high) if coordinates_fit(low, high, sources[0].metadata) else None
 
 
-def select_to_file(job: Job, out: Path, rule: Rule, encoding: str | None, what: str) -> int:
+def select_to_file(job: Job, out: Path, rule: Rule | Sequence[Rule], encoding: str | None, what: str) -> int:
     """Write what ``rule`` keeps of every chunk of ``job``'s sources (in order) to ``out``.
 
-    In this process chunk by chunk; on Dask, pieces of the files in parallel into spills, then
-    the spills in order into ``out``. Returns the points written.
+    ``rule`` is one rule for every source, or a sequence of one per source. In this process chunk
+    by chunk; on Dask, pieces of the files in parallel into spills, then the spills in order into
+    ``out``. Returns the points written.
     """
+    rules = list(rule) if isinstance(rule, (list, tuple)) else [rule] * len(job.sources)
     bounds = writer_bounds(job.sources)
-    template = rule(job.template, np.zeros(0, np.int64))
+    template = rules[0](job.template, np.zeros(0, np.int64))
     if job.client is None:
         if bounds is None and len(job.sources) == 1 and job.source.count <= job.points:
             # One chunk (a scan of a folder): its own bounds, rather than a spill, for LAS.
             whole = job.source.read(0, job.source.count)
-            kept = rule(whole, np.arange(len(whole), dtype=np.int64))
+            kept = rules[0](whole, np.arange(len(whole), dtype=np.int64))
             with open_writer(out, encoding, bounds=kept.bounds() if len(kept) else None) as writer:
                 writer.write(kept)
                 return writer.count
         with open_writer(out, encoding, bounds=bounds) as writer:
             writer.write(template)
-            for source in job.sources:
+            for source, source_rule in zip(job.sources, rules, strict=True):
                 with progress_bar(source.count, f"{what} {source.path.name}", job.progress) as bar:
                     for chunk, index in indexed_chunks(source, job.points, bar=bar):
-                        writer.write(rule(chunk, index))
+                        writer.write(source_rule(chunk, index))
             return writer.count
     with scratch_folder(out, job.scratch) as folder:
         calls = []
-        for source in job.sources:
+        for source, source_rule in zip(job.sources, rules, strict=True):
             # One file is cut into pieces for the workers; many files are a task each.
             ranges = job.pieces(source) if len(job.sources) == 1 else distributed.piece_ranges(source.count, 1)
             for start, stop in ranges:
                 spill = str(folder / f"piece-{len(calls):06d}.spill")
-                calls.append((str(source.path), job.options, start, stop, job.points, rule, spill))
+                calls.append((str(source.path), job.options, start, stop, job.points, source_rule, spill))
         with progress_bar(len(calls), f"{what} (pieces)", job.progress, "piece") as bar:
             distributed.run_tasks(job.client, select_task, calls, bar)
         with open_writer(out, encoding, bounds=bounds) as writer:

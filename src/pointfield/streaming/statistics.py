@@ -18,6 +18,7 @@ import numpy as np
 
 from pointfield.clouds.arrays import finite_corners
 from pointfield.clouds.cloud import PointCloud
+from pointfield.clouds.summary import format_and_encoding
 from pointfield.streaming import distributed
 from pointfield.streaming.chunks import open_source
 from pointfield.streaming.jobs import indexed_chunks, progress_bar, streaming_job
@@ -151,7 +152,7 @@ def format_stats(info: dict[str, Any]) -> str:
     """``stats``' dict as aligned text, the way ``cloud info --stats`` prints it."""
     lines = [
         f"file        {info['path']}",
-        f"format      {info['format']} {info['encoding'] or ''}".rstrip(),
+        f"format      {format_and_encoding(info['format'], info['encoding'])}",
         f"points      {info['points']:,} ({info['nonfinite_points']:,} with NaN or infinite coordinates)",
     ]
     bounds = info["bounds"]

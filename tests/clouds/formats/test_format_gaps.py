@@ -298,7 +298,7 @@ def test_cloud_convert_prints_the_narrowing_warning(tmp_path, capsys):
     source = tmp_path / "ids.npz"
     pointfield.write(source, PointCloud(np.zeros((2, 3)), {"id": np.array([1, 2], np.uint64)}))
     assert main(["cloud", "convert", str(source), str(tmp_path / "ids.ply")]) == 0
-    assert "pointfield: warning: PLY has no 64-bit integers" in capsys.readouterr().err
+    assert f"pointfield: warning: {tmp_path / 'ids.ply'}: PLY has no 64-bit integers" in capsys.readouterr().err
 
 
 def test_nan_written_to_las_integer_fields_is_warned(tmp_path):

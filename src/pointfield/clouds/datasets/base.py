@@ -8,6 +8,7 @@ dataset whose clouds were all read when it was built, as :class:`CloudFolder` an
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
@@ -56,7 +57,13 @@ class CloudDataset(torch.utils.data.Dataset):
         cloud, label = self.load(index)
         if self.transform is not None:
             cloud = self.transform(cloud, np.random.default_rng([self.seed, self.epoch, index]))
-        return cloud, label
+        # Where the sample came from, so that a batch that cannot be made names its file.
+        return dataclasses.replace(cloud, metadata={**cloud.metadata, "source": self.source_of(index)}), label
+
+    def source_of(self, index: int) -> str:
+        """The file sample ``index`` was read from (``files[index]``), else ``"sample <index>"``."""
+        files = getattr(self, "files", None)
+        return str(files[index]) if files is not None and index < len(files) else f"sample {index}"
 
     def with_transform(self, transform: Callable | None) -> CloudDataset:
         """A shallow copy of this dataset (same loaded clouds) with another transform."""

@@ -67,6 +67,12 @@ class CloudCollate:
             raise PointfieldError("a cloud in the batch has no points")
         batch, size = len(samples), max(sizes)
         points = torch.zeros(batch, size, 3)
+        for cloud, _ in samples:  # every sample checked first: the error names the file that lacks a field
+            for name in self.features:
+                if name not in cloud.fields:
+                    source = cloud.metadata.get("source", "a cloud of the batch")
+                    raise PointfieldError(f"{source}: has no {name!r} field to use as a feature "
+                                          f"(its fields: {', '.join(cloud.fields) or 'none'})")
         channels = sum(_channels(samples[0][0], name) for name in self.features)
         features = torch.zeros(batch, size, channels) if self.features else None
         point_labels = torch.full((batch, size), -1, dtype=torch.long) if self.point_labels else None
@@ -80,7 +86,8 @@ class CloudCollate:
                 features[row, :n] = torch.from_numpy(np.concatenate(columns, axis=1))
             if point_labels is not None:
                 if PART_LABEL_FIELD not in cloud.fields:
-                    raise PointfieldError("a cloud in the batch has no per-point 'label' field")
+                    source = cloud.metadata.get("source", "a cloud of the batch")
+                    raise PointfieldError(f"{source}: has no per-point {PART_LABEL_FIELD!r} field")
                 point_labels[row, :n] = torch.from_numpy(
                     cloud.fields[PART_LABEL_FIELD].astype(np.int64)
                 )

@@ -3,6 +3,7 @@
 from pointfield.clouds.formats import (  # noqa: F401  (each registers itself)
     e57,
     las,
+    meshes,
     npy,
     npz,
     off,

@@ -158,8 +158,29 @@ def write(
         warnings.warn(
             f"{path}: {fmt.name} holds no faces; {len(faces)} faces were not written", stacklevel=2
         )
-    try:
-        with atomic_path(path) as tmp:
-            fmt.write(tmp, cloud, encoding=resolved, **options)
-    except FormatError as error:
-        raise FormatError(path, error.reason) from None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            with atomic_path(path) as tmp:
+                fmt.write(tmp, cloud, encoding=resolved, **options)
+        except FormatError as error:
+            raise FormatError(path, error.reason) from None
+    for warning in caught:  # about the user's file, not the temporary one it was written as
+        warnings.warn_explicit(_naming(path, tmp, str(warning.message)), warning.category, *_caller())
+
+
+def _naming(path: Path, tmp: Path, message: str) -> str:
+    """``message`` with the temporary file's name replaced by ``path``'s, and ``path`` first."""
+    message = message.replace(str(tmp), str(path)).replace(tmp.name, path.name)
+    return message if str(path) in message else f"{path}: {message}"
+
+
+def _caller() -> tuple[str, int]:
+    """The file and line of the first frame outside pointfield: where a user's code called it."""
+    import sys
+
+    package = str(Path(__file__).resolve().parents[2])
+    frame = sys._getframe(1)
+    while frame.f_back is not None and str(Path(frame.f_code.co_filename).resolve()).startswith(package):
+        frame = frame.f_back
+    return frame.f_code.co_filename, frame.f_lineno

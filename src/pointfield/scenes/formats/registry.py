@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from pointfield.errors import FormatError, PointfieldError
+from pointfield.scenes.formats.companions import with_companion_points
 from pointfield.scenes.scene import Scene, SceneError
 
 
@@ -111,6 +112,8 @@ def read_scene(
         raise FileNotFoundError(f"{path}: no such file or directory")
     fmt = scene_format_named(format) if format else detect_scene_format(path)
     scene = fmt.read(path, missing_images=missing_images, **options)
+    if fmt.name != "colmap":  # a COLMAP model beside a transforms.json or LLFF poses gives its sparse points
+        scene = with_companion_points(scene, Path(scene.metadata.get("root", path if path.is_dir() else path.parent)))
     scene.metadata["format"] = fmt.name
     scene = scene.with_background(background).downscaled(downscale)
     if holdout_every is not None:

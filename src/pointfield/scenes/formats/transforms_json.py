@@ -36,13 +36,14 @@ from __future__ import annotations
 import math
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats import read, write
 from pointfield.errors import FormatError
 from pointfield.scenes.cameras import CAMERA_MODELS, Cameras, opencv_to_opengl, opengl_to_opencv
@@ -469,9 +470,21 @@ def write_nerfstudio(scene: Scene, directory: Path, points_file: str = "sparse_p
             if name in SPLIT_NAMES:
                 document[f"{name}_filenames"] = [relative_images[i] for i in indices]
     if scene.points is not None:
-        write(directory / points_file, scene.points)
+        write(directory / points_file, _narrow_ids(scene.points))
         document["ply_file_path"] = points_file
     write_json(directory / "transforms.json", document)
+
+
+def _narrow_ids(points: PointCloud) -> PointCloud:
+    """COLMAP's 64-bit ``point_id`` (and any 64-bit integer field) as int32 where every value fits,
+    which PLY holds and which reads back equal: otherwise the PLY writer would warn a user about a
+    detail of a file pointfield chose to write."""
+    fields = dict(points.fields)
+    for name, values in fields.items():
+        wide = values.dtype.kind in "iu" and values.dtype.itemsize == 8 and values.size
+        if wide and np.iinfo(np.int32).min <= int(values.min()) and int(values.max()) <= np.iinfo(np.int32).max:
+            fields[name] = values.astype(np.int32)
+    return replace(points, fields=fields)
 
 
 def _output_stem(frame: Frame, root: Path) -> str:

@@ -505,7 +505,9 @@ def _enough(total: int) -> int:
 def _check_registration(registered: int, total: int, options: PosingOptions, work: _Work) -> None:
     if registered >= _enough(total):
         if registered < total:
-            warnings.warn(f"{total - registered} of {total} images could not be registered; see the report", stacklevel=3)
+            out = work.root.with_name(work.root.name.removesuffix(".partial"))
+            warnings.warn(f"{out}: {total - registered} of {total} photos could not be registered; "
+                          f"{out / 'report.json'} lists them", stacklevel=3)
         return
     advice = (
         "take overlapping photos (each part of the scene in three or more photos, from nearby viewpoints)"
