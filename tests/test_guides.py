@@ -64,6 +64,9 @@ SHARED = {
     "my_photos": "colmap/tiny_phone_scene/fotos",
     "b.pcd": "pcd/pcl_bunny_ascii.pcd",
     "c.off": "modelnet/ModelNet10/chair/train/chair_0002.off",
+    "bun0.pcd": "registration/pcl_bun0.pcd",
+    "bun4.pcd": "registration/pcl_bun4.pcd",
+    "table.pcd": "segmentation/pcl_milk_cartoon_all_small_clorox.pcd",
 }
 """Placeholder name of the pages -> the real file of ../shared/data it stands for."""
 
