@@ -42,8 +42,13 @@ from pointfield.clouds.mesh import Mesh
 from pointfield.errors import PointfieldError
 from pointfield.viz.render import image_grid, render_cloud, save_image
 
-# Formats without dtypes: text has none, velodyne .bin stores every value as float32.
-VALUE_ONLY_FORMATS = frozenset({"text", "off", "velodyne", "e57", "ptx"})
+# Formats without dtypes: text has none, velodyne .bin stores every value as float32, and the
+# mesh formats read through trimesh come back as float64 whatever they stored.
+VALUE_ONLY_FORMATS = frozenset({"text", "off", "velodyne", "e57", "ptx", "obj", "stl", "gltf"})
+# Formats whose round trip gives the same surface but not the same vertices, so no point-by-point
+# comparison applies (tests/clouds/formats/test_meshes.py checks their surfaces).
+UNINDEXED_FORMATS = {"stl": "STL stores each triangle's corners, not shared vertices: the surface comes back, "
+                            "its vertices in another order"}
 # Formats that store coordinates as integers times a per-axis scale (metadata["scales"]).
 SCALED_FORMATS = frozenset({"las"})
 
@@ -287,6 +292,9 @@ def round_trip(name: str, cloud: PointCloud, fmt: Format, encoding: str, path: P
     other exception while writing, and any while reading back, is a failure of the round trip.
     """
     trip = RoundTrip(name, fmt.name, encoding, path)
+    if fmt.name in UNINDEXED_FORMATS:
+        trip.skipped = UNINDEXED_FORMATS[fmt.name]
+        return trip
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         start = time.perf_counter()

@@ -19,6 +19,7 @@ trimesh raises for a malformed file become a FormatError naming the file.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -40,22 +41,24 @@ def read_mesh(path: Path) -> Mesh | PointCloud:
 
     try:
         loaded = trimesh.load(path, file_type=_file_type(path), process=False)
+        if _file_type(path) == "stl" and isinstance(loaded, trimesh.Trimesh):
+            loaded.merge_vertices()  # STL repeats each triangle's corners: shared vertices come back shared
         if isinstance(loaded, trimesh.Scene):
             geometry = [g for g in loaded.dump() if hasattr(g, "vertices")]
             meshes = [g for g in geometry if isinstance(g, trimesh.Trimesh)]
             loaded = trimesh.util.concatenate(meshes) if meshes else (geometry[0] if geometry else None)
+        vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), np.float64).reshape(-1, 3)
+        faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), np.int64).reshape(-1, 3)
     except FormatError:
         raise
     except Exception as error:  # noqa: BLE001  (trimesh raises many types for malformed files)
         raise FormatError(path, f"not a readable {path.suffix.lstrip('.').upper() or 'mesh'} file ({error})") from None
-    vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), np.float64).reshape(-1, 3)
     if loaded is None or len(vertices) == 0:
         raise FormatError(path, "the file holds no vertices")
     fields = {}
     colours = _vertex_colours(loaded, len(vertices))
     if colours is not None:
         fields["colors"] = colours
-    faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), np.int64).reshape(-1, 3)
     metadata = {"encoding": _encoding(path)}
     if len(faces) == 0:
         return PointCloud(vertices, fields, None, metadata)
@@ -79,6 +82,10 @@ def write_mesh(path: Path, cloud: PointCloud, encoding: str | None = None) -> No
         if np.issubdtype(colours.dtype, np.floating):
             colours = np.clip(np.round(colours * 255), 0, 255)
         colours = colours.astype(np.uint8)
+    dropped = sorted(name for name in cloud.fields if name != "colors")
+    if dropped:
+        warnings.warn(f"{path.suffix.upper().lstrip('.')} keeps vertices, triangles and colours; not written: "
+                      f"{', '.join(dropped)}", stacklevel=2)
     shape = trimesh.Trimesh(np.asarray(cloud.points, np.float64), cloud.triangles(), vertex_colors=colours,
                             process=False)
     shape.export(path, file_type=path.suffix.lower().lstrip(".") or encoding)
