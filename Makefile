@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near clean
+.PHONY: demo test test-guides lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,6 +22,11 @@ demo: $(BIN)/.installed
 # One worker per core (pytest-xdist), each folder's tests on one worker: tests/conftest.py.
 test: lint docs $(BIN)/.chromium
 	$(BIN)/python -m pytest -q -n auto
+
+# The README's and the training guides' commands in order (tests/test_guides.py), which `make test`
+# leaves out: they train, render and export models for over 20 minutes on two cores.
+test-guides: $(BIN)/.installed
+	POINTFIELD_GUIDES=all $(BIN)/python -m pytest -q tests/test_guides.py
 
 lint: $(BIN)/.installed
 	$(BIN)/ruff check src tests benchmarks docs

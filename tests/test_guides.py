@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import glob
 import json
+import os
 import re
 import shlex
 from pathlib import Path
@@ -204,8 +205,16 @@ def eager(monkeypatch):
     monkeypatch.setattr(compiling, "_compiler_available_for", lambda device_type: False)
 
 
+TRAINING_PAGES = frozenset({"README.md", "docs/geometry.md", "docs/route.md"})
+"""Pages whose commands train, render and export models (route.md uses the README's runs): more
+than 20 minutes on one thread of an idle 2-core machine, twice what the whole of ``make test`` may
+take, so they run only with ``POINTFIELD_GUIDES=all`` (``make test-guides``)."""
+
+
 @pytest.mark.parametrize("page", PAGES)
 def test_the_pages_commands_run_in_the_order_written(page, work, eager, monkeypatch, capsys, one_torch_thread):
+    if page in TRAINING_PAGES and os.environ.get("POINTFIELD_GUIDES") != "all":
+        pytest.skip(f"{page} trains models for minutes: run with POINTFIELD_GUIDES=all (make test-guides)")
     monkeypatch.chdir(work)
     ran, skipped = 0, []
     for line in page_commands(page):
