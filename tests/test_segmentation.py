@@ -101,3 +101,14 @@ def test_bad_options_are_one_line(tmp_path, capsys, argv, fragment):
     assert main(["cloud", argv[0], str(source), str(tmp_path / "out.ply"), *argv[1:]]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and fragment in err[0]
+
+
+def test_ground_json_is_all_that_reaches_stdout(tmp_path, capfd):
+    """CSF's C++ prints its progress ("[0] Configuring terrain...") on file descriptor 1; --json must stay parseable."""
+    points, _ = box_scene()
+    source = tmp_path / "scene.ply"
+    pointfield.write(source, pointfield.PointCloud(points.astype(np.float32)))
+    assert main(["cloud", "ground", str(source), str(tmp_path / "ground.las"), "--resolution", "0.1", "--threshold",
+                 "0.01", "--rigidness", "3", "--json"]) == 0
+    printed = json.loads(capfd.readouterr().out)
+    assert printed["ground"] == (pointfield.read(tmp_path / "ground.las").fields["classification"] == 2).sum()
