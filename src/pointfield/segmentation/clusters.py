@@ -4,6 +4,8 @@ A point is a core point when at least ``min_points`` points (itself included) li
 ``eps``; core points within ``eps`` of each other share a cluster (connected components of
 that graph, scipy); a non-core point within ``eps`` of a core point joins that point's
 cluster; the rest are noise (-1). Clusters are numbered by size, largest first.
+:func:`clusters_beside_planes` takes the planes of :func:`~pointfield.segmentation.segment_planes`
+out first, each as one cluster.
 """
 
 from __future__ import annotations
@@ -36,11 +38,32 @@ def dbscan(points: np.ndarray, eps: float, min_points: int = 10) -> np.ndarray:
     for a, b in ((0, 1), (1, 0)):
         border = ~core[pairs[:, a]] & core[pairs[:, b]]
         assigned[pairs[border, a]] = component[pairs[border, b]]
-    clustered = assigned >= 0
-    if clustered.any():
-        ids, sizes = np.unique(assigned[clustered], return_counts=True)
-        rank = np.empty(ids.max() + 1, np.int32)
-        rank[ids[np.argsort(-sizes, kind="stable")]] = np.arange(len(ids), dtype=np.int32)
-        assigned[clustered] = rank[assigned[clustered]]
-    labels[finite] = assigned
+    labels[finite] = by_size(assigned)
     return labels
+
+
+def by_size(labels: np.ndarray) -> np.ndarray:
+    """``(N,)`` int32 ``labels`` renumbered 0, 1, ... from the largest cluster down; negative stays -1."""
+    out = np.full(len(labels), -1, np.int32)
+    clustered = labels >= 0
+    if clustered.any():
+        ids, inverse, sizes = np.unique(labels[clustered], return_inverse=True, return_counts=True)
+        rank = np.empty(len(ids), np.int32)
+        rank[np.argsort(-sizes, kind="stable")] = np.arange(len(ids), dtype=np.int32)
+        out[clustered] = rank[inverse.reshape(-1)]
+    return out
+
+
+def clusters_beside_planes(points: np.ndarray, planes: np.ndarray, eps: float, min_points: int = 10) -> np.ndarray:
+    """``(N,)`` int32: each plane of ``planes`` (``(N,)`` labels of :func:`~pointfield.segmentation.segment_planes`,
+    -1 off every plane) one cluster, and :func:`dbscan` clusters of the points off them; all numbered by size.
+
+    PCL's table-top pipeline: the supporting plane taken out first, as objects that stand on it
+    would otherwise join it through the points where they touch.
+    """
+    planes = np.asarray(planes)
+    off = planes < 0
+    labels = np.where(off, -1, planes).astype(np.int64)
+    found = dbscan(np.asarray(points)[off], eps, min_points)
+    labels[np.flatnonzero(off)] = np.where(found >= 0, found + planes.max(initial=-1) + 1, -1)
+    return by_size(labels)
