@@ -69,6 +69,24 @@ def test_dbscan_calls_isolated_points_noise():
     assert labels[-1] == -1 and labels[-2] == -1 and (labels[:100] == 0).all()
 
 
+def test_dbscan_in_small_blocks_matches_one_block_and_open3d():
+    """Pairs found a few thousand at a time (bounded memory) join the same clusters as all at once,
+    and as open3d's cluster_dbscan, up to the numbering and the border points open3d gives its first core neighbour."""
+    o3d = pytest.importorskip("open3d")
+    rng = np.random.default_rng(1)
+    points = np.vstack([rng.normal(centre, 0.05, (800, 3)) for centre in rng.uniform(-1, 1, (6, 3))]
+                       + [rng.uniform(-1.5, 1.5, (800, 3))])
+    labels = dbscan(points, eps=0.06, min_points=8)
+    assert np.array_equal(dbscan(points, eps=0.06, min_points=8, max_pairs=2000), labels)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    theirs = np.asarray(cloud.cluster_dbscan(0.06, 8))
+    assert labels.max() == theirs.max() >= 5
+    assert np.array_equal(labels < 0, theirs < 0)
+    agree = [np.bincount(theirs[labels == c][theirs[labels == c] >= 0]).max() / (labels == c).sum()
+             for c in range(labels.max() + 1)]
+    assert min(agree) > 0.99
+
+
 def test_planes_taken_out_first_leave_what_stands_on_them_apart():
     points, truth = box_scene()
     _, on_plane = segment_planes(points, count=1, distance=0.01)
