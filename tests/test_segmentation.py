@@ -9,7 +9,14 @@ import pytest
 
 import pointfield
 from pointfield.cli import main
-from pointfield.segmentation import dbscan, ground_classification, ground_mask, iou, segment_planes
+from pointfield.segmentation import (
+    clusters_beside_planes,
+    dbscan,
+    ground_classification,
+    ground_mask,
+    iou,
+    segment_planes,
+)
 
 
 def box_scene(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -62,6 +69,58 @@ def test_dbscan_calls_isolated_points_noise():
     assert labels[-1] == -1 and labels[-2] == -1 and (labels[:100] == 0).all()
 
 
+def test_dbscan_in_small_blocks_matches_one_block_and_open3d():
+    """Pairs found a few thousand at a time (bounded memory) join the same clusters as all at once,
+    and as open3d's cluster_dbscan, up to the numbering and the border points open3d gives its first core neighbour."""
+    o3d = pytest.importorskip("open3d")
+    rng = np.random.default_rng(1)
+    points = np.vstack([rng.normal(centre, 0.05, (800, 3)) for centre in rng.uniform(-1, 1, (6, 3))]
+                       + [rng.uniform(-1.5, 1.5, (800, 3))])
+    labels = dbscan(points, eps=0.06, min_points=8)
+    assert np.array_equal(dbscan(points, eps=0.06, min_points=8, max_pairs=2000), labels)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    theirs = np.asarray(cloud.cluster_dbscan(0.06, 8))
+    assert labels.max() == theirs.max() >= 5
+    assert np.array_equal(labels < 0, theirs < 0)
+    agree = [np.bincount(theirs[labels == c][theirs[labels == c] >= 0]).max() / (labels == c).sum()
+             for c in range(labels.max() + 1)]
+    assert min(agree) > 0.99
+
+
+def test_planes_taken_out_first_leave_what_stands_on_them_apart():
+    points, truth = box_scene()
+    _, on_plane = segment_planes(points, count=1, distance=0.01)
+    assert dbscan(points, eps=0.1, min_points=5).max() == 0  # the boxes stand 2 cm off the floor: joined to it
+    labels = clusters_beside_planes(points, on_plane, eps=0.1, min_points=5)
+    for cluster in range(4):  # the floor, then the boxes, largest first
+        assert iou(labels == cluster, truth == cluster) > 0.95
+
+
+def test_clusters_planes_needs_the_plane_field(tmp_path, capsys):
+    source = tmp_path / "scene.ply"
+    pointfield.write(source, pointfield.PointCloud(box_scene()[0].astype(np.float32)))
+    assert main(["cloud", "clusters", str(source), str(tmp_path / "out.ply"), "--planes"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(source) in err[0] and "field 'plane'" in err[0]
+
+
+def test_milk_table_and_each_object_are_their_own_clusters(shared_data):
+    """PCL's milk cloud (a Kinect frame of a floor with a milk carton, a detergent and a bleach bottle on it, chair legs
+    behind): planes out first, then DBSCAN; docs/images/milk-clusters.png is this result."""
+    cloud = pointfield.read(shared_data / "segmentation" / "pcl_milk_cartoon_all_small_clorox.pcd")
+    planes, on_plane = segment_planes(cloud.points, count=1, distance=0.02)
+    labels = clusters_beside_planes(cloud.points, on_plane, eps=0.025, min_points=50)
+    assert np.array_equal(labels == 0, on_plane == 0)  # the table is the largest cluster, objects not joined to it
+    normal, offset = planes[0].equation[:3], planes[0].equation[3]
+    heights = np.abs(cloud.points.astype(np.float64) @ normal + offset)
+    for cluster in (1, 2, 3):  # the three objects: whole (10,000 points or more), 10 to 30 cm tall, on the table
+        inside = labels == cluster
+        assert inside.sum() > 9000 and np.ptp(cloud.points[inside], axis=0).max() < 0.3
+        assert heights[inside].min() < 0.025 and 0.1 < heights[inside].max() < 0.3
+    for cluster in range(4, labels.max() + 1):  # chair legs: smaller, and standing on it too (no piece of an object)
+        assert (labels == cluster).sum() < 2000 and heights[labels == cluster].min() < 0.03
+
+
 def test_cloth_simulation_finds_the_ground_under_boxes():
     points, truth = box_scene()
     mask = ground_mask(points, cloth_resolution=0.1, rigidness=3, class_threshold=0.01)  # box bottoms are 0.02 up
@@ -101,3 +160,14 @@ def test_bad_options_are_one_line(tmp_path, capsys, argv, fragment):
     assert main(["cloud", argv[0], str(source), str(tmp_path / "out.ply"), *argv[1:]]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and fragment in err[0]
+
+
+def test_ground_json_is_all_that_reaches_stdout(tmp_path, capfd):
+    """CSF's C++ prints its progress ("[0] Configuring terrain...") on file descriptor 1; --json must stay parseable."""
+    points, _ = box_scene()
+    source = tmp_path / "scene.ply"
+    pointfield.write(source, pointfield.PointCloud(points.astype(np.float32)))
+    assert main(["cloud", "ground", str(source), str(tmp_path / "ground.las"), "--resolution", "0.1", "--threshold",
+                 "0.01", "--rigidness", "3", "--json"]) == 0
+    printed = json.loads(capfd.readouterr().out)
+    assert printed["ground"] == (pointfield.read(tmp_path / "ground.las").fields["classification"] == 2).sum()

@@ -49,6 +49,9 @@ def add_commands(commands: argparse._SubParsersAction) -> None:
     clusters.add_argument("destination", type=Path, metavar="OUT")
     clusters.add_argument("--eps", type=float, metavar="E", help="neighbour distance (default: 3 x the median point spacing)")
     clusters.add_argument("--min-points", type=int, default=10, metavar="M", help="points within E of a core (default 10)")
+    clusters.add_argument("--planes", action="store_true",
+                          help="IN's field 'plane' (from `cloud planes`) first: each plane one cluster, DBSCAN on the "
+                          "other points, so that objects standing on a table are not joined to it (PCL's table top)")
     clusters.add_argument("--json", action="store_true", help="print the cluster sizes as JSON")
     clusters.set_defaults(run=run_clusters)
 
@@ -111,9 +114,12 @@ def run_clusters(args: argparse.Namespace) -> int:
     from scipy.spatial import cKDTree
 
     from pointfield.clouds.ops import finite_rows
-    from pointfield.segmentation import dbscan
+    from pointfield.segmentation import clusters_beside_planes, dbscan
 
     cloud = _read(args.source)
+    if args.planes and "plane" not in cloud.fields:
+        raise PointfieldError(f"{args.source}: --planes needs the field 'plane' that `pointfield cloud planes` writes; "
+                              f"the cloud has {', '.join(cloud.fields) or 'no fields'}")
     eps = args.eps
     if eps is None:
         finite = cloud.points[finite_rows(cloud.points)].astype(np.float64)
@@ -122,7 +128,8 @@ def run_clusters(args: argparse.Namespace) -> int:
         print(f"eps {eps:.4g} = 3 x the median point spacing; set --eps to override")
     elif not eps > 0:
         raise PointfieldError(f"--eps must be positive, got {eps}")
-    labels = dbscan(cloud.points, eps, args.min_points)
+    labels = (clusters_beside_planes(cloud.points, cloud.fields["plane"], eps, args.min_points) if args.planes
+              else dbscan(cloud.points, eps, args.min_points))
     _write(args.destination, cloud, "cluster", labels)
     sizes = np.bincount(labels[labels >= 0]) if (labels >= 0).any() else np.zeros(0, np.int64)
     if args.json:

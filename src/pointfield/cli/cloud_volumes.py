@@ -95,10 +95,7 @@ def run_voxelize(args: argparse.Namespace) -> int:
     from pointfield.volumes import openness_text, voxelize_cloud, voxelize_mesh, write_voxels
     from pointfield.volumes.streamed import voxelize_file
 
-    try:
-        budget = parse_memory(args.memory)
-    except ValueError as error:
-        raise PointfieldError(str(error)) from None
+    budget = parse_memory(args.memory)  # a bad size is an OptionError, printed as one line
     if not args.voxel > 0:
         raise PointfieldError(f"--voxel must be positive, got {args.voxel}")
     if args.destination.suffix.lower() not in (".binvox", ".vox", ".npz"):
@@ -128,10 +125,7 @@ def run_sdf(args: argparse.Namespace) -> int:
     from pointfield.geometry.meshes import MESH_SUFFIXES, write_mesh
     from pointfield.volumes import mesh_to_sdf, openness_text
 
-    try:
-        budget = parse_memory(args.memory)
-    except ValueError as error:
-        raise PointfieldError(str(error)) from None
+    budget = parse_memory(args.memory)  # a bad size is an OptionError, printed as one line
     if args.voxel is not None and not args.voxel > 0:
         raise PointfieldError(f"--voxel must be positive, got {args.voxel}")
     if args.resolution is not None and args.resolution < 8:
@@ -162,10 +156,7 @@ def run_poisson(args: argparse.Namespace) -> int:
     from pointfield.geometry.meshes import MESH_SUFFIXES, write_mesh
     from pointfield.volumes import poisson_surface
 
-    try:
-        budget = parse_memory(args.memory)
-    except ValueError as error:
-        raise PointfieldError(str(error)) from None
+    budget = parse_memory(args.memory)  # a bad size is an OptionError, printed as one line
     if args.destination.suffix.lower() not in MESH_SUFFIXES:
         raise PointfieldError(f"{args.destination}: a mesh is written as {', '.join(MESH_SUFFIXES)}")
     mesh = poisson_surface(pointfield.read(args.source), depth=args.depth, max_bytes=budget)

@@ -8,6 +8,12 @@ dropped on it under gravity; where it rests is the ground surface, and points wi
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import os
+import sys
+from collections.abc import Iterator
+
 import numpy as np
 
 from pointfield.clouds.ops import finite_rows
@@ -42,9 +48,31 @@ def ground_mask(points: np.ndarray, cloth_resolution: float = 0.5, rigidness: in
     cloth.params.time_step = time_step
     cloth.setPointCloud(valid)
     ground, other = CSF.VecInt(), CSF.VecInt()
-    cloth.do_filtering(ground, other, False)
+    with _c_stdout_silenced():
+        cloth.do_filtering(ground, other, False)
     mask[finite[np.asarray(list(ground), np.int64)]] = True
     return mask
+
+
+@contextlib.contextmanager
+def _c_stdout_silenced() -> Iterator[None]:
+    """File descriptor 1 sent to /dev/null meanwhile: CSF's C++ prints its progress ("[0] Configuring
+    terrain...", "[0]  - post handle...") on standard output, where it would break ``cloud ground --json``."""
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+    except OSError:  # no standard output to guard
+        yield
+        return
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 1)
+    try:
+        yield
+    finally:
+        ctypes.CDLL(None).fflush(None)  # what C's stdio still buffers goes to /dev/null too, not after the restore
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(null)
 
 
 def ground_classification(mask: np.ndarray, classification: np.ndarray | None = None) -> np.ndarray:
