@@ -24,7 +24,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from harness import Record
 
@@ -42,10 +41,7 @@ def main() -> int:
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--depth", type=int, default=8, help="2^depth cells across the box (default 8)")
-    parser.add_argument("--threads", type=int, help="torch.set_num_threads (default: PyTorch's)")
     args = parser.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
     if not ARMADILLO.is_file():
         raise SystemExit(f"no Armadillo at {ARMADILLO}")
     cloud = pointfield.read(ARMADILLO)

@@ -92,3 +92,15 @@ def test_a_bt_file_reads_back_in_octomap_with_every_cell_as_it_was(tmp_path):
     centres = ours.to_grid("known").centres()
     theirs = np.array([-1 if (node := tree.search(c)) is None else int(tree.isNodeOccupied(node)) for c in centres])
     assert np.array_equal(ours.state(centres), theirs)
+
+
+def test_a_cell_hit_or_missed_scan_after_scan_saturates_at_octomaps_clamping_thresholds():
+    occupancy = OccupancyMap(0.1)
+    origin = np.array([0.05, 0.05, 0.05])
+    for _ in range(20):  # the ray crosses the cells at x 0.1 .. 0.9 (missed) and ends in the one at x 1.0 (hit)
+        occupancy.insert_scan(np.array([[1.05, 0.05, 0.05]]), origin)
+    probability = 1 / (1 + np.exp(-occupancy.log_odds.astype(np.float64)))
+    hit = occupancy.state(np.array([[1.05, 0.05, 0.05]]))[0] == 1
+    # OctoMap's AbstractOccupancyOcTree: clamping thresholds 0.971 and 0.1192, not 0.97 and 0.12.
+    assert hit and probability.max() == pytest.approx(0.971, abs=1e-6)
+    assert probability.min() == pytest.approx(0.1192, abs=1e-6)

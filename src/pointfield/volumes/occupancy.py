@@ -6,7 +6,7 @@ through free cells and ends in an occupied one; per scan, a cell is updated once
 over free when rays both end and pass there), in log-odds:
 
     L(cell) <- clamp(L(cell) + log(p / (1 - p)), L_min, L_max)
-    p = 0.7 for a hit, 0.4 for a miss; clamped to probabilities [0.12, 0.97]   (OctoMap's defaults)
+    p = 0.7 for a hit, 0.4 for a miss; clamped to probabilities [0.1192, 0.971]   (OctoMap's defaults)
 
 A cell is occupied when ``L > 0`` (probability above 1/2), free when ``L <= 0``, unknown when no
 ray reached it. The cells a ray passes through are found exactly by Amanatides and Woo's voxel
@@ -37,7 +37,9 @@ def logit(p: float) -> float:
 
 
 HIT, MISS = logit(0.7), logit(0.4)
-CLAMP = (logit(0.12), logit(0.97))
+CLAMP = (logit(0.1192), logit(0.971))
+"""OctoMap's clamping thresholds (AbstractOccupancyOcTree's defaults): how sure a cell can get, so how many
+misses turn a well-seen wall free again."""
 KEY_BITS = 21
 KEY_OFFSET = 1 << (KEY_BITS - 1)
 

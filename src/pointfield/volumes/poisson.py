@@ -35,6 +35,7 @@ from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.mesh import Mesh
 from pointfield.clouds.ops import estimate_normals
 from pointfield.errors import PointfieldError
+from pointfield.volumes.sdf import SDFGrid
 from pointfield.volumes.voxels import check_dense_fits
 
 POISSON_BYTES_PER_NODE = 64
@@ -117,12 +118,9 @@ def poisson_surface(cloud: PointCloud, depth: int = 8, scale: float = 1.1, max_b
     chi = np.fft.irfftn(spectrum, s=(size, size, size), axes=(0, 1, 2)).astype(np.float32)
     del spectrum, divergence
     iso = float(_sample(chi, local).mean())
-    from skimage.measure import marching_cubes
-
-    vertices, faces, _, _ = marching_cubes(chi, iso, spacing=(h, h, h), gradient_direction="ascent",
-                                           allow_degenerate=False)
-    # Faces front the way the points' normals point: along them, or against them where chi falls that way.
+    # Faces front the way the points' normals point: chi - iso taken as a signed distance (growing outwards,
+    # which SDFGrid.to_mesh's marching cubes faces) where chi grows along the normals, iso - chi where it falls.
     along = float(np.mean(_sample(chi, local + normals) - _sample(chi, local - normals)))
-    faces = faces[:, ::-1] if along > 0 else faces
-    return Mesh(vertices.astype(np.float64) + origin, {}, None, {"source": "poisson", "depth": depth, "iso": iso},
-                faces=faces.astype(np.int32))
+    mesh = SDFGrid((chi - iso) if along > 0 else (iso - chi), origin, h).to_mesh()
+    mesh.metadata = {"source": "poisson", "depth": depth, "iso": iso}
+    return mesh
