@@ -18,6 +18,7 @@ import pointfield
 from pointfield.cli import main
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.scene_crops import CropFinder, SceneCrops, class_weights, cover, prepare_scene
+from pointfield.clouds.scene_tasks import class_palette
 from pointfield.clouds.synthetic_scenes import ROOM_CLASSES, make_scenes, synthetic_scene
 from pointfield.clouds.transforms import ColourDrop, ColourJitter
 
@@ -172,3 +173,14 @@ def test_a_block_crop_is_a_column_of_square_section():
     inside = CropFinder(points, 1.0, "block").within(np.zeros(3))
     expected = np.flatnonzero((np.abs(points[:, :2]) <= 1.0).all(axis=1))
     assert np.array_equal(inside, expected) and np.ptp(points[inside, 2]) > 5  # every height
+
+
+def test_the_prediction_picture_gives_the_first_ten_classes_ten_hues():
+    """tab20 in its own order gives classes 0 and 1 (floor, wall) two shades of one blue."""
+    import matplotlib
+
+    palette = class_palette(20)
+    tab10 = np.round(np.asarray(matplotlib.colormaps["tab10"].colors) * 255).astype(np.uint8)
+    assert np.array_equal(palette[:10], tab10)
+    assert len({tuple(c) for c in palette}) == 20
+    assert np.array_equal(class_palette(23)[20:], palette[:3])  # past 20 classes, colours repeat

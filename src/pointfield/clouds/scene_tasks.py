@@ -72,7 +72,7 @@ from pointfield.training.run import Run, RunDirectory
 from pointfield.training.task import Step, Task
 from pointfield.version import __version__
 from pointfield.viz.plots import plot_confusion_matrix, plot_training_curves
-from pointfield.viz.render import image_grid, render_cloud, save_image
+from pointfield.viz.render import render_cloud
 
 TASK = "segment-scenes"
 DEFAULTS = {"model": "pointnet2", "grid": 0.05, "radius": 2.0, "shape": "sphere", "points": 4096, "crops": 256,
@@ -81,6 +81,7 @@ CURVES_PNG = "training_curves.png"
 CONFUSION_PNG = "confusion_matrix.png"
 PREDICTION_PNG = "prediction.png"
 LAS_SUFFIXES = (".las", ".laz")
+UNLABELLED_GREY = 160
 
 
 # ---------------------------------------------------------------------------------------------
@@ -120,16 +121,40 @@ def confusion_over(
     return confusion, predictions
 
 
+def class_palette(classes: int) -> np.ndarray:
+    """``(classes, 3)`` uint8 colours, one per class: tab20's ten strong colours, then their light
+    partners. tab20 in its own order pairs each colour with its light shade, which gave
+    neighbouring classes (floor and wall, chair and shelf) one hue; in this order the first ten
+    classes have ten hues, and a class keeps its colour in every picture of a run."""
+    colours = np.asarray(matplotlib.colormaps["tab20"].colors)
+    ordered = np.concatenate([colours[0::2], colours[1::2]])
+    return np.round(ordered[np.arange(classes) % len(ordered)] * 255).astype(np.uint8)
+
+
 def draw_prediction(scene: PointCloud, predicted: np.ndarray, classes: Sequence[str], path: Path) -> Path:
-    """Save the scan drawn twice, coloured by its true classes and by the predicted ones, side by side."""
-    palette = (np.asarray(matplotlib.colormaps["tab20"].colors) * 255).astype(np.uint8)
-    views = []
-    for labels in (scene.fields[LABEL_FIELD], predicted):
-        colours = np.where((labels >= 0)[:, None], palette[np.clip(labels, 0, None) % len(palette)], 160)
-        views.append(render_cloud(PointCloud(scene.points, {"colors": colours.astype(np.uint8)}), 640, 480,
-                                  up="z", color_by="colors"))
-    legend = ", ".join(f"{i} {name}" for i, name in enumerate(classes))
-    return save_image(path, image_grid(views, ["truth", f"predicted (tab20 colours: {legend})"], columns=2))
+    """Save the scan drawn twice from one viewpoint, coloured by its true classes (left; grey:
+    unlabelled) and by the predicted ones (right), above a legend of the class colours."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
+
+    palette = class_palette(len(classes))
+    truth = scene.fields[LABEL_FIELD]
+    figure = Figure(figsize=(13, 5.6), dpi=100, layout="constrained")
+    for axes, labels, title in zip(figure.subplots(1, 2), (truth, predicted), ("truth", "predicted")):
+        colours = np.where((labels >= 0)[:, None], palette[np.clip(labels, 0, None)], UNLABELLED_GREY)
+        axes.imshow(render_cloud(PointCloud(scene.points, {"colors": colours.astype(np.uint8)}), 640, 480,
+                                 up="z", color_by="colors"))
+        axes.set_title(title)
+        axes.set_axis_off()
+    handles = [Patch(color=palette[i] / 255, label=name) for i, name in enumerate(classes)]
+    if (truth < 0).any():
+        handles.append(Patch(color=np.full(3, UNLABELLED_GREY / 255), label="unlabelled"))
+    figure.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 10), frameon=False)
+    FigureCanvasAgg(figure)
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, format="png")
+    return path
 
 
 def vote_on(model: torch.nn.Module, scene: PointCloud, config: dict[str, Any], device: torch.device) -> np.ndarray:
