@@ -20,6 +20,7 @@ from typing import Any
 from pointfield.cli.classify import print_per_class
 from pointfield.cli.classify import run_eval as run_object_eval
 from pointfield.cli.classify import run_train as run_object_train
+from pointfield.cli.training_options import max_time_left
 
 DEFAULT_OBJECT_MODEL = "pointnet"
 DEFAULT_OBJECT_POINTS = 1024
@@ -37,7 +38,8 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
                         help="crop shape: a ball (default) or a vertical column of square section")
     scenes.add_argument("--crops", type=int, help="training crops per epoch (default 256)")
     scenes.add_argument("--max-time", type=float, metavar="S",
-                        help="stop training after S seconds (summed over resumed sessions)")
+                        help="the whole command returns within S seconds of wall clock: reading the scans, training, "
+                        "the evaluation after each epoch (left out when it would not fit) and the final scores")
     scenes.add_argument("--classes", help="class names of labelled files, comma-separated (code i is the i-th) "
                         "or a JSON file; default: a classes.json beside the files")
     scenes.add_argument("--test-area", type=int, help="S3DIS area held out for testing (default 5)")
@@ -93,7 +95,8 @@ def run_train(args: argparse.Namespace) -> int:
         args.data, out=args.out, model=args.model, features=features, grid=args.grid, radius=args.radius,
         shape=args.shape, points=args.points, crops=args.crops, epochs=args.epochs, batch_size=args.batch_size,
         learning_rate=args.learning_rate, label_field=args.label_field, class_names=_class_names(args.classes),
-        test_area=args.test_area, seed=args.seed, device=args.device, resume=args.resume, max_time=args.max_time,
+        test_area=args.test_area, seed=args.seed, device=args.device, resume=args.resume,
+        max_time=max_time_left(args),
         workers=args.workers, progress=args.progress,
     )
     print(f"segment run {args.out}: {_scores(metrics)} ({metrics['epochs']} epochs, {metrics['seconds']:.0f} s); "
