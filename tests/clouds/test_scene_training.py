@@ -18,8 +18,11 @@ import pointfield
 from pointfield.cli import main
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.scene_crops import CropFinder, SceneCrops, class_weights, cover, prepare_scene
+from pointfield.clouds.scene_tasks import SceneSegmentTask, class_palette
 from pointfield.clouds.synthetic_scenes import ROOM_CLASSES, make_scenes, synthetic_scene
 from pointfield.clouds.transforms import ColourDrop, ColourJitter
+from pointfield.training.loop import TrainingState
+from pointfield.training.run import RunDirectory
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -172,3 +175,30 @@ def test_a_block_crop_is_a_column_of_square_section():
     inside = CropFinder(points, 1.0, "block").within(np.zeros(3))
     expected = np.flatnonzero((np.abs(points[:, :2]) <= 1.0).all(axis=1))
     assert np.array_equal(inside, expected) and np.ptp(points[inside, 2]) > 5  # every height
+
+
+def test_the_prediction_picture_gives_the_first_ten_classes_ten_hues():
+    """tab20 in its own order gives classes 0 and 1 (floor, wall) two shades of one blue."""
+    import matplotlib
+
+    palette = class_palette(20)
+    tab10 = np.round(np.asarray(matplotlib.colormaps["tab10"].colors) * 255).astype(np.uint8)
+    assert np.array_equal(palette[:10], tab10)
+    assert len({tuple(c) for c in palette}) == 20
+    assert np.array_equal(class_palette(23)[20:], palette[:3])  # past 20 classes, colours repeat
+
+
+def test_the_final_scores_are_of_the_final_model_when_the_clock_skipped_its_evaluation(rooms, tmp_path):
+    """An epoch's evaluation that ``max_time`` could not hold leaves an older model's confusion behind."""
+    import torch
+
+    config = SceneSegmentTask.configure({"data": [rooms], "grid": 0.12, "radius": 1.5, "points": 128, "crops": 4,
+                                         "batch_size": 2, "epochs": 2})
+    task = SceneSegmentTask(config, torch.device("cpu"), None, False)
+    task.confusion = np.diag([1000] * len(ROOM_CLASSES))  # a perfect score, from an earlier model
+    history = [{"epoch": 1, "step": 2, "train_loss": 1.0, "test_miou": 1.0},
+               {"epoch": 2, "step": 4, "train_loss": 0.9}]  # epoch 2 trained, its evaluation skipped
+    (tmp_path / "run").mkdir()
+    final = task.finish(RunDirectory(tmp_path / "run"), TrainingState(epoch=2, step=4, history=history))
+    assert final["test_points"] == sum(len(scene) for scene in task.test_scenes) != 1000 * len(ROOM_CLASSES)
+    assert final["miou"] < 1.0

@@ -145,12 +145,15 @@ def run_eval(args: argparse.Namespace, task: str) -> int:
         print(to_json(metrics, indent=2))
         return 0
     print(f"{metrics['samples']} test clouds: {_scores_line(metrics)}")
-    label = "IoU" if task == "segment" else "accuracy"
-    width = max(len(name) for name in metrics["per_class"])
-    for name, value in metrics["per_class"].items():
-        shown = "absent" if value is None else f"{value:.4f}"
-        print(f"  {name:<{width}}  {label} {shown}")
+    print_per_class(metrics["per_class"], "IoU" if task == "segment" else "accuracy")
     return 0
+
+
+def print_per_class(per_class: dict[str, float | None], label: str) -> None:
+    """One line per class: its ``label`` score, or "absent" where the test data holds none of it."""
+    width = max(len(name) for name in per_class)
+    for name, value in per_class.items():
+        print(f"  {name:<{width}}  {label} {'absent' if value is None else f'{value:.4f}'}")
 
 
 def run_predict(args: argparse.Namespace) -> int:

@@ -55,15 +55,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_predict(args: argparse.Namespace) -> int:
+    """Label the files with an object run (answers count ``parts``) or a scene run (``classes``)."""
     if segment_scenes.scene_run_task(args.run_dir):
-        return segment_scenes.run_predict(args)
-    from pointfield.clouds import run
+        from pointfield.clouds.scene_tasks import open_scene_run
 
-    answers = run.predict("segment", args.run_dir, args.files, device=args.device, out=args.out)
+        answers = open_scene_run(args.run_dir, args.device).predict(args.files, out=args.out)
+        counted = "classes"
+    else:
+        from pointfield.clouds import run
+
+        answers = run.predict("segment", args.run_dir, args.files, device=args.device, out=args.out)
+        counted = "parts"
     if args.json:
         print(json.dumps(answers, indent=2))
         return 0
     for answer in answers:
-        parts = ", ".join(f"{name} {count}" for name, count in answer["parts"].items())
-        print(f"{answer['file']} -> {answer['output']}: {answer['points']} points ({parts})")
+        counts = ", ".join(f"{name} {count}" for name, count in answer[counted].items())
+        print(f"{answer['file']} -> {answer['output']}: {answer['points']} points ({counts})")
     return 0

@@ -7,7 +7,7 @@ labelled files, or a folder with a ``classes.json`` class table (what ``make-sce
 otherwise (a folder of object clouds, ShapeNetPart, no DATA) it trains on objects as before.
 ``make-scenes`` sits in this group, not in ``pointfield scene`` (posed images for radiance
 fields), because what it makes is segmentation data: labelled clouds and their class table.
-``eval`` and ``predict`` open the run and do what its task does.
+``eval`` and ``predict`` (``segment.run_predict``) open the run and do what its task does.
 """
 
 from __future__ import annotations
@@ -17,8 +17,10 @@ import json
 from pathlib import Path
 from typing import Any
 
+from pointfield.cli.classify import print_per_class
 from pointfield.cli.classify import run_eval as run_object_eval
 from pointfield.cli.classify import run_train as run_object_train
+from pointfield.cli.training_options import max_time_left
 
 DEFAULT_OBJECT_MODEL = "pointnet"
 DEFAULT_OBJECT_POINTS = 1024
@@ -36,7 +38,8 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
                         help="crop shape: a ball (default) or a vertical column of square section")
     scenes.add_argument("--crops", type=int, help="training crops per epoch (default 256)")
     scenes.add_argument("--max-time", type=float, metavar="S",
-                        help="stop training after S seconds (summed over resumed sessions)")
+                        help="the whole command returns within S seconds of wall clock: reading the scans, training, "
+                        "the evaluation after each epoch (left out when it would not fit) and the final scores")
     scenes.add_argument("--classes", help="class names of labelled files, comma-separated (code i is the i-th) "
                         "or a JSON file; default: a classes.json beside the files")
     scenes.add_argument("--test-area", type=int, help="S3DIS area held out for testing (default 5)")
@@ -92,14 +95,13 @@ def run_train(args: argparse.Namespace) -> int:
         args.data, out=args.out, model=args.model, features=features, grid=args.grid, radius=args.radius,
         shape=args.shape, points=args.points, crops=args.crops, epochs=args.epochs, batch_size=args.batch_size,
         learning_rate=args.learning_rate, label_field=args.label_field, class_names=_class_names(args.classes),
-        test_area=args.test_area, seed=args.seed, device=args.device, resume=args.resume, max_time=args.max_time,
+        test_area=args.test_area, seed=args.seed, device=args.device, resume=args.resume,
+        max_time=max_time_left(args),
         workers=args.workers, progress=args.progress,
     )
     print(f"segment run {args.out}: {_scores(metrics)} ({metrics['epochs']} epochs, {metrics['seconds']:.0f} s); "
           f"see {args.out / 'metrics.json'}")
-    width = max(len(name) for name in metrics["per_class"])
-    for name, value in metrics["per_class"].items():
-        print(f"  {name:<{width}}  IoU {'absent' if value is None else f'{value:.4f}'}")
+    print_per_class(metrics["per_class"], "IoU")
     return 0
 
 
@@ -131,29 +133,14 @@ def run_eval(args: argparse.Namespace) -> int:
     if not scene_run_task(args.run_dir):
         return run_object_eval(args, "segment")
     from pointfield.clouds.scene_tasks import open_scene_run
+    from pointfield.training.run import to_json
 
     metrics = open_scene_run(args.run_dir, args.device).evaluate([args.data] if args.data else None)
     if args.json:
-        print(json.dumps(metrics, indent=2))
+        print(to_json(metrics, indent=2))
         return 0
     print(f"{metrics['scans']} test scans, {metrics['points']:,} points: {_scores(metrics)}")
-    width = max(len(name) for name in metrics["per_class"])
-    for name, value in metrics["per_class"].items():
-        print(f"  {name:<{width}}  IoU {'absent' if value is None else f'{value:.4f}'}")
-    return 0
-
-
-def run_predict(args: argparse.Namespace) -> int:
-    """``segment predict`` for a scene run (``segment.run_predict`` sends scene runs here)."""
-    from pointfield.clouds.scene_tasks import open_scene_run
-
-    answers = open_scene_run(args.run_dir, args.device).predict(args.files, out=args.out)
-    if args.json:
-        print(json.dumps(answers, indent=2))
-        return 0
-    for answer in answers:
-        counts = ", ".join(f"{name} {count}" for name, count in answer["classes"].items())
-        print(f"{answer['file']} -> {answer['output']}: {answer['points']} points ({counts})")
+    print_per_class(metrics["per_class"], "IoU")
     return 0
 
 
