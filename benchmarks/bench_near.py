@@ -26,6 +26,7 @@ Run: ``make bench-near`` (= ``python benchmarks/bench_near.py``); the record goe
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import sys
 from pathlib import Path
@@ -65,6 +66,9 @@ def main() -> int:
     parser.add_argument("--near-views", type=int, default=8, help="nearer views scored (default 8)")
     parser.add_argument("--frames", type=int, default=12, help="turntable frames scored (default 12)")
     parser.add_argument("--ngp-backend", default="auto", help="ngp's kernels: auto (compiled) or eager (no compile)")
+    parser.add_argument("--ngp-options", type=json.loads, default={},
+                        help="more ngp model options, JSON (default none: the CPU's defaults); e.g. a smaller grid and "
+                             "'target_samples' for a loaded machine, as tests/fields/test_any_camera.py trains")
     parser.add_argument("--models", nargs="+", choices=sorted(GOALS_DB), default=sorted(GOALS_DB),
                         help="which models to train and score (default both)")
     parser.add_argument("--out", type=Path, default=Path("bench-output/near"), help="scene and run folders")
@@ -73,14 +77,14 @@ def main() -> int:
     scene = make_scene(args.scene, args.out / "scene", views=args.views, size=args.size)
     record = Record("near", "Renders from cameras the models never saw: nearer, and the turntable", issue="43",
                     about=f"`scene make {args.scene}` at {args.size} x {args.size}, {args.views} views 4 units from "
-                          f"its centre; ngp trained {args.ngp_steps} steps and splats {args.splat_steps} steps in the "
+                          f"its centre; ngp trained {args.ngp_steps} steps (options {json.dumps(args.ngp_options)}) and splats {args.splat_steps} steps in the "
                           f"same run. Held out: the run's own held-out views; nearer: {args.near_views} views from "
                           f"{args.near}x the training distance; turntable: {args.frames} frames of the orbit path; "
                           "the last two against the scene's analytic truth from the same cameras. Every score is the "
                           "mean of per-view PSNR.")
     runs = {
         "ngp": lambda out: train_field(scene, model="ngp", out=out, steps=args.ngp_steps, progress=False,
-                                       model_options={"backend": args.ngp_backend}),
+                                       model_options={**args.ngp_options, "backend": args.ngp_backend}),
         "splats": lambda out: train_splats(scene, out=out, steps=args.splat_steps, progress=False),
     }
     nearer = synthetic_cameras(args.near_views, args.size, radius=args.near * TRAINING_DISTANCE)

@@ -36,11 +36,15 @@ import os
 import shutil
 import sys
 import time
+from contextlib import nullcontext
 from pathlib import Path
 
 import torch
 
 from harness import Record, device_name
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from tf32 import tf32_convolutions  # tests/tf32.py: CUDA's TF32 convolutions emulated, shared with the tests
 
 LEGO = Path(__file__).resolve().parents[2] / "shared" / "data" / "nerf" / "lego_blender"
 SIZES = (100, 200, 400, 800)
@@ -65,26 +69,6 @@ def write_scene(lego: Path, folder: Path, train_views: int, heldout_views: int) 
     return folder
 
 
-def _tf32(values: torch.Tensor) -> torch.Tensor:
-    """float32 rounded to TF32's 10-bit mantissa (to nearest), as tensor cores read it."""
-    bits = values.contiguous().view(torch.int32)
-    return ((bits + 0x1000) & ~0x1FFF).view(torch.float32)
-
-
-class _TF32Convolution(torch.autograd.Function):
-    """A float32 convolution as cuDNN runs one on CUDA by default: TF32 inputs, float32 sums."""
-
-    @staticmethod
-    def forward(ctx, image, weight, convolve):
-        ctx.save_for_backward(image, weight)
-        return convolve(_tf32(image), _tf32(weight))
-
-    @staticmethod
-    def backward(ctx, grad):
-        image, weight = ctx.saved_tensors
-        return torch.nn.grad.conv2d_input(image.shape, _tf32(weight), _tf32(grad)), None, None
-
-
 def ssim_precision(lego: Path, sizes: list[int]) -> list[list[str]]:
     """The SSIM gradient of lego's first training view against a low-contrast copy of itself
     (``0.7 x + 0.15``), exact and with float32 convolutions in emulated TF32, at each size: how
@@ -107,24 +91,16 @@ def ssim_precision(lego: Path, sizes: list[int]) -> list[list[str]]:
         c1, c2 = 0.01**2, 0.03**2
         return ((2 * mu_x * mu_y + c1) * (2 * cov_xy + c2) / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))).mean()
 
-    convolve = F.conv2d
-
-    def tf32_convolution(image, weight):
-        return _TF32Convolution.apply(image, weight, convolve) if image.dtype == torch.float32 else convolve(image, weight)
-
     rows = []
     for size in sizes:
         truth = torch.from_numpy(open_scene(lego, 800 // size, 10, "white").image(0))
         row = [f"{size} x {size}"]
         for function in (old_ssim, ssim):
             gradients = []
-            for convolution in (convolve, tf32_convolution):
-                F.conv2d = convolution
-                try:
+            for emulation in (nullcontext, tf32_convolutions):
+                with emulation():
                     image = (0.7 * truth + 0.15).requires_grad_()
                     function(image, truth).backward()
-                finally:
-                    F.conv2d = convolve
                 gradients.append(image.grad)
             exact, emulated = gradients
             error = float((emulated - exact).norm() / exact.norm())

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from tf32 import tf32_convolutions
 
 from pointfield.metrics import (
     accuracy,
@@ -150,27 +151,6 @@ def test_images_of_different_shapes_are_an_error():
         psnr(np.zeros((4, 4, 3)), np.zeros((4, 5, 3)))
 
 
-def _tf32(values: torch.Tensor) -> torch.Tensor:
-    """float32 rounded to TF32's 10-bit mantissa (to nearest), as tensor cores read it."""
-    bits = values.contiguous().view(torch.int32)
-    return ((bits + 0x1000) & ~0x1FFF).view(torch.float32)
-
-
-class _TF32Convolution(torch.autograd.Function):
-    """A float32 convolution as cuDNN runs one on CUDA by default (``torch.backends.cudnn.allow_tf32``):
-    inputs rounded to TF32, products summed in float32; forward and backward alike."""
-
-    @staticmethod
-    def forward(ctx, image, weight, convolve):
-        ctx.save_for_backward(image, weight)
-        return convolve(_tf32(image), _tf32(weight))
-
-    @staticmethod
-    def backward(ctx, grad):
-        image, weight = ctx.saved_tensors
-        return torch.nn.grad.conv2d_input(image.shape, _tf32(weight), _tf32(grad)), None, None
-
-
 def _smooth_object_on_white(size: int) -> torch.Tensor:
     """An ``(size, size, 3)`` float32 picture: a disc shaded smoothly, on a white background."""
     v, u = torch.meshgrid(torch.linspace(-1, 1, size), torch.linspace(-1, 1, size), indexing="ij")
@@ -179,7 +159,7 @@ def _smooth_object_on_white(size: int) -> torch.Tensor:
     return inside * shade + (1 - inside)
 
 
-def test_ssim_gradient_does_not_depend_on_tf32_convolutions(monkeypatch):
+def test_ssim_gradient_does_not_depend_on_tf32_convolutions():
     # On CUDA, float32 convolutions run in TF32 unless told not to; SSIM's variances, E[x^2] -
     # E[x]^2 over an 11 x 11 window, cancel badly then: on a lego view at 800 x 800 the splat
     # loss's SSIM gradient came out 47 times too large and random (cosine 0.02 with the true
@@ -188,11 +168,9 @@ def test_ssim_gradient_does_not_depend_on_tf32_convolutions(monkeypatch):
     image = (0.7 * truth + 0.15).requires_grad_()
     ssim(image, truth).backward()
     exact = image.grad.clone()
-    convolve = torch.nn.functional.conv2d
-    monkeypatch.setattr(torch.nn.functional, "conv2d", lambda image, weight: (
-        _TF32Convolution.apply(image, weight, convolve) if image.dtype == torch.float32 else convolve(image, weight)))
     image.grad = None
-    ssim(image, truth).backward()
+    with tf32_convolutions():
+        ssim(image, truth).backward()
     assert float((image.grad - exact).norm() / exact.norm()) < 1e-3
 
 

@@ -4,44 +4,19 @@ import json
 
 import pytest
 import torch
+from splat_strategy import model_and_optimizer, training_steps
 
 from pointfield.errors import PointfieldError
 from pointfield.splats.densification import DefaultStrategy, MCMCStrategy, make_strategy, relocation
-from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
-from pointfield.splats.loss import splat_loss
-from pointfield.splats.rasterizer import rasterization
+from pointfield.splats.gaussians import PARAMETER_NAMES
 from pointfield.splats.train import train
 
 
-def _model_and_optimizer(count=100):
-    gaussians = Gaussians.random_in_box(count, [-1, -1, 3], [1, 1, 5], seed=2)
-    optimizer = torch.optim.Adam([{"params": [getattr(gaussians, n)], "lr": 1e-2} for n in PARAMETER_NAMES])
-    return gaussians, optimizer
-
-
-def _training_steps(gaussians, optimizer, strategy, steps, counts=None):
-    K = torch.tensor([[[40.0, 0, 24], [0, 40.0, 24], [0, 0, 1]]])
-    target = torch.rand(48, 48, 3, generator=torch.Generator().manual_seed(1))
-    meta = None
-    for step in range(steps):
-        if meta is not None:
-            strategy.after_backward(gaussians, optimizer, meta, step, 48, 48)
-            if counts is not None:
-                counts.append(len(gaussians))
-        colors, _, _, meta = rasterization(
-            gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities,
-            gaussians.sh_coefficients, torch.eye(4)[None], K, 48, 48, sh_degree=0,
-        )
-        optimizer.zero_grad()
-        (splat_loss(colors[0], target) + strategy.regularization(gaussians)).backward()
-        optimizer.step()
-
-
 def test_the_count_grows_to_the_cap_and_never_past_it():
-    gaussians, optimizer = _model_and_optimizer()
+    gaussians, optimizer = model_and_optimizer(seed=2)
     strategy = MCMCStrategy(refine_start=0, refine_every=1, max_splats=112, log=lambda _: None)
     counts = []
-    _training_steps(gaussians, optimizer, strategy, 6, counts)
+    training_steps(gaussians, optimizer, strategy, 6, counts)
     # 5 % more per refinement: 100 -> 105 -> 110 -> 112, then held.
     assert counts == [105, 110, 112, 112, 112]
     for name in PARAMETER_NAMES:
@@ -50,7 +25,7 @@ def test_the_count_grows_to_the_cap_and_never_past_it():
 
 
 def test_dead_splats_are_moved_onto_live_ones_and_come_back_to_life():
-    gaussians, optimizer = _model_and_optimizer(20)
+    gaussians, optimizer = model_and_optimizer(20, seed=2)
     with torch.no_grad():
         gaussians.opacity_logits[:5] = -10.0                      # opacity 4.5e-5: dead
         gaussians.opacity_logits[5:] = 0.0                        # 0.5
@@ -79,7 +54,7 @@ def test_the_copies_of_a_relocated_splat_are_as_opaque_together_as_it_was():
 
 
 def test_noise_moves_nearly_transparent_splats_and_leaves_opaque_ones():
-    gaussians, optimizer = _model_and_optimizer(10)
+    gaussians, optimizer = model_and_optimizer(10, seed=2)
     with torch.no_grad():
         gaussians.opacity_logits[:5] = -8.0                       # 3e-4
         gaussians.opacity_logits[5:] = 2.0                        # 0.88

@@ -4,13 +4,13 @@ cameras, the 2D mip filter, and what they do to views closer than the training c
 import json
 import math
 
-import numpy as np
 import pytest
 import torch
 
 import pointfield
-from pointfield.metrics import psnr_from_mse
-from pointfield.scenes.synthetic import render_scene, synthetic_cameras
+from pointfield.metrics import mean_psnr
+from pointfield.scenes import synthetic_truth
+from pointfield.scenes.synthetic import synthetic_cameras
 from pointfield.splats.gaussians import Gaussians
 from pointfield.splats.mip import MIP_DILATION, SMOOTHING, baked, smoothed, smoothing_variance
 from pointfield.splats.ply import read_splat_mode, read_splats
@@ -75,11 +75,8 @@ def _psnr_at(run_folder, distance):
     """Mean PSNR of 8 views of the cube from ``distance`` against its analytic truth."""
     run = pointfield.load_run(run_folder, "cpu")
     cameras = synthetic_cameras(8, CUBE["cube_size"], radius=distance)
-    rgba, _, _ = render_scene("cube", cameras)
-    truths = rgba[..., :3] * rgba[..., 3:] + run.scene.background * (1 - rgba[..., 3:])
-    views = run.render(cameras)
-    return float(np.mean([psnr_from_mse(float(((view["rgb"].numpy() - truth) ** 2).mean()))
-                          for view, truth in zip(views, truths)]))
+    views = run.render(cameras, outputs=("rgb",))
+    return mean_psnr([view["rgb"].numpy() for view in views], list(synthetic_truth(run.scene, cameras)))
 
 
 def test_a_mip_run_records_its_filters(runs):

@@ -5,13 +5,14 @@ import json
 import numpy as np
 import pytest
 import torch
+from splat_strategy import model_and_optimizer, training_steps
 
 from pointfield.cli import main
 from pointfield.errors import PointfieldError
 from pointfield.metrics import ssim
 from pointfield.scenes import make_scene
 from pointfield.splats.densification import DefaultStrategy
-from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
+from pointfield.splats.gaussians import PARAMETER_NAMES
 from pointfield.splats.loss import flatness, opacity_entropy, splat_loss
 from pointfield.splats.ply import read_splats
 from pointfield.splats.rasterizer import rasterization
@@ -70,33 +71,10 @@ def test_the_geometry_terms_make_splats_opaque_or_gone_and_flat(tiny_scene, tmp_
     assert on[1] < 0.8 * off[1], f"smallest / middle scale {on[1]:.3f} with the term, {off[1]:.3f} without"
 
 
-def _training_steps(gaussians, optimizer, strategy, steps):
-    K = torch.tensor([[[40.0, 0, 24], [0, 40.0, 24], [0, 0, 1]]])
-    target = torch.rand(48, 48, 3, generator=torch.Generator().manual_seed(1))
-    meta = None
-    for step in range(steps):
-        if meta is not None:
-            strategy.after_backward(gaussians, optimizer, meta, step, 48, 48)
-        colors, _, _, meta = rasterization(
-            gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities,
-            gaussians.sh_coefficients, torch.eye(4)[None], K, 48, 48, sh_degree=0,
-        )
-        meta["means2d"].retain_grad()
-        optimizer.zero_grad()
-        splat_loss(colors[0], target).backward()
-        optimizer.step()
-
-
-def _model_and_optimizer(count=100):
-    gaussians = Gaussians.random_in_box(count, [-1, -1, 3], [1, 1, 5])
-    optimizer = torch.optim.Adam([{"params": [getattr(gaussians, n)], "lr": 1e-2} for n in PARAMETER_NAMES])
-    return gaussians, optimizer
-
-
 def test_densification_grows_and_keeps_the_optimizer_in_step():
-    gaussians, optimizer = _model_and_optimizer()
+    gaussians, optimizer = model_and_optimizer()
     strategy = DefaultStrategy(refine_start=1, refine_every=2, grad_threshold=1e-7, reset_every=1000)
-    _training_steps(gaussians, optimizer, strategy, 4)
+    training_steps(gaussians, optimizer, strategy, 4)
     assert len(gaussians) > 100
     for name in PARAMETER_NAMES:
         parameter = getattr(gaussians, name)
@@ -106,20 +84,20 @@ def test_densification_grows_and_keeps_the_optimizer_in_step():
 
 def test_the_cap_stops_densification_with_a_message():
     messages = []
-    gaussians, optimizer = _model_and_optimizer()
+    gaussians, optimizer = model_and_optimizer()
     strategy = DefaultStrategy(refine_start=1, refine_every=2, grad_threshold=1e-7, max_splats=130,
                                reset_every=1000, log=messages.append)
-    _training_steps(gaussians, optimizer, strategy, 6)
+    training_steps(gaussians, optimizer, strategy, 6)
     assert len(gaussians) == 130
     assert len(messages) == 1 and "splat cap of 130 reached" in messages[0] and "--max-splats" in messages[0]
 
 
 def test_pruning_removes_transparent_splats_and_reset_lowers_opacity():
-    gaussians, optimizer = _model_and_optimizer(10)
+    gaussians, optimizer = model_and_optimizer(10)
     with torch.no_grad():
         gaussians.opacity_logits[:3] = -10.0
     strategy = DefaultStrategy(refine_start=0, refine_every=1, grad_threshold=1e9, reset_every=2)
-    _training_steps(gaussians, optimizer, strategy, 3)
+    training_steps(gaussians, optimizer, strategy, 3)
     assert len(gaussians) == 7
     assert float(gaussians.opacities.detach().max()) <= 0.011
 
