@@ -233,9 +233,11 @@ class SplatTask(Task):
 
     def warm_up(self) -> None:
         # The rasterizer's compiled kernels are built on first use (seconds): here, before the clock.
-        with torch.no_grad():
-            render_views(self.model, self.viewmats[:1], self.Ks[:1], *self.sizes[0], self.background,
-                         **self.mode)
+        # Rendered as an evaluation renders (one camera's own matrices): dynamo specialises on the
+        # matrices' base, so a slice of every camera's (viewmats[:1]) left the first held-out view
+        # to compile again. Training's differentiable rendering runs eagerly (rasterizer.py).
+        frame = (self.evaluated if len(self.evaluated) else self.train_frames)[0]
+        self.render(self.scene.cameras[[int(frame)]])
 
     def render(self, cameras) -> list[dict[str, torch.Tensor]]:
         return [render_camera(self.model, cameras, index, self.background, **self.mode)
