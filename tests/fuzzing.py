@@ -54,10 +54,6 @@ class Seed:
     suffix: str
 
 
-MESH_ONLY_FORMATS = frozenset({"obj", "stl", "gltf"})
-"""Formats that hold meshes only (through trimesh): their seed is the mesh."""
-
-
 def generated_seeds(workdir: Path) -> list[Seed]:
     """One small file per writable format and encoding, written by pointfield itself, and the
     files it cannot write: a two-scan Leica PTX with a transform, a LASzip 1.2r0 LAZ."""
@@ -86,8 +82,8 @@ def generated_seeds(workdir: Path) -> list[Seed]:
                 for kind, item in (("cloud", cloud), ("mesh", mesh)):
                     if kind == "mesh" and not fmt.holds_faces:
                         continue
-                    if kind == "cloud" and fmt.name in MESH_ONLY_FORMATS:
-                        continue  # they refuse a cloud without faces
+                    if kind == "cloud" and fmt.needs_faces:
+                        continue  # it refuses a cloud without faces
                     path = workdir / f"{fmt.name}-{encoding}-{kind}{suffix}"
                     with warnings.catch_warnings(action="ignore"):
                         pointfield.write(path, item, format=fmt.name, encoding=encoding)

@@ -13,11 +13,12 @@ from pointfield.cli.demo import (
     compare,
     demo_clouds,
     reconstruct_scene,
+    round_trip,
     run_demo,
 )
 from pointfield.clouds import synthetic
 from pointfield.clouds.cloud import PointCloud
-from pointfield.clouds.formats import formats
+from pointfield.clouds.formats import format_named, formats
 from pointfield.errors import PointfieldError
 
 
@@ -64,6 +65,14 @@ def test_lossless_formats_keep_every_field(demo):
     for trip in report.round_trips:
         if trip.format in ("ply", "pcd", "npy", "npz") and not trip.skipped:
             assert trip.fields_kept == trip.fields_total, trip.path.name
+
+
+def test_an_stl_round_trip_is_checked_triangle_by_triangle(tmp_path):
+    # STL stores each triangle's corners: the mesh comes back with its vertices renumbered, and the
+    # demo still checks every corner (and that the normals it cannot hold are named in a warning).
+    trip = round_trip("icosphere", synthetic.icosphere(1), format_named("stl"), "binary", tmp_path / "ico.stl")
+    assert trip.ok and not trip.skipped and "faces" in trip.extras_kept, trip.problems
+    assert "normals dropped" in trip.notes
 
 
 def test_renders_and_contact_sheet_are_written(demo):

@@ -14,6 +14,9 @@ What "came back" means depends on what the format can hold:
   carry no dtype (:data:`VALUE_ONLY_FORMATS`), where the values must come back exactly once cast
   to the original dtype, and in LAS, whose coordinates are integers times a scale: there each
   coordinate must come back within half its scale;
+- a mesh whose format stores each triangle's corners rather than shared vertices (STL) comes back
+  with its vertices renumbered: there its triangles are compared corner by corner, with the
+  corners' fields;
 - anything a format cannot hold (a field, faces, NaN points for LAS) or has to change (LAS
   colours become uint16) must be named in a warning; something lost or changed without a
   warning is a failure.
@@ -45,10 +48,6 @@ from pointfield.viz.render import image_grid, render_cloud, save_image
 # Formats without dtypes: text has none, velodyne .bin stores every value as float32, and the
 # mesh formats read through trimesh come back as float64 whatever they stored.
 VALUE_ONLY_FORMATS = frozenset({"text", "off", "velodyne", "e57", "ptx", "obj", "stl", "gltf"})
-# Formats whose round trip gives the same surface but not the same vertices, so no point-by-point
-# comparison applies (tests/clouds/formats/test_meshes.py checks their surfaces).
-UNINDEXED_FORMATS = {"stl": "STL stores each triangle's corners, not shared vertices: the surface comes back, "
-                            "its vertices in another order"}
 # Formats that store coordinates as integers times a per-axis scale (metadata["scales"]).
 SCALED_FORMATS = frozenset({"las"})
 
@@ -292,9 +291,6 @@ def round_trip(name: str, cloud: PointCloud, fmt: Format, encoding: str, path: P
     other exception while writing, and any while reading back, is a failure of the round trip.
     """
     trip = RoundTrip(name, fmt.name, encoding, path)
-    if fmt.name in UNINDEXED_FORMATS:
-        trip.skipped = UNINDEXED_FORMATS[fmt.name]
-        return trip
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         start = time.perf_counter()
@@ -332,6 +328,10 @@ def compare(
         trip.problems.append("came back without coordinates")
         return
     trip.points = len(back)
+    renumbered = _renumbered(original, back)
+    if renumbered:  # STL stores each triangle's corners, not shared vertices: compare the triangles
+        trip.notes.append("vertices renumbered; triangles compared corner by corner")
+        original, back = _corners(original), _corners(back)
     keep = np.arange(len(original))
     if len(back) != len(original):
         finite = np.flatnonzero(np.isfinite(original.points).all(axis=1))
@@ -342,8 +342,11 @@ def compare(
             trip.problems.append(f"{len(original)} points came back as {len(back)}")
             return
 
-    if not _same_points(original.points[keep], back, format_name):
+    same_points = _same_points(original.points[keep], back, format_name)
+    if not same_points:
         trip.problems.append(f"points changed ({original.points.dtype} -> {back.points.dtype})")
+    if renumbered and same_points:
+        trip.extras_kept.append("faces")
 
     trip.fields_total = len(original.fields)
     for field_name, values in original.fields.items():
@@ -367,6 +370,19 @@ def compare(
             trip.problems.append("faces lost or changed without a warning")
     if original.shape is not None and back.shape == original.shape:
         trip.extras_kept.append("grid")
+
+
+def _renumbered(original: PointCloud, back: Any) -> bool:
+    """Whether ``back`` is ``original``'s mesh with as many triangles but its vertices in another order."""
+    return (isinstance(original, Mesh) and isinstance(back, Mesh) and len(original.faces) > 0
+            and len(back.triangles()) == len(original.triangles())
+            and not np.array_equal(original.faces, back.faces))
+
+
+def _corners(mesh: Mesh) -> PointCloud:
+    """Each triangle's three corners in order, with their fields: ``(3F, 3)`` points."""
+    corners = mesh.triangles().reshape(-1)
+    return PointCloud(mesh.points[corners], {name: values[corners] for name, values in mesh.fields.items()})
 
 
 def _same_points(points: np.ndarray, back: PointCloud, format_name: str) -> bool:

@@ -30,7 +30,7 @@ from pointfield.streaming.chunks import StreamingFallback
 from pointfield.streaming.jobs import output_done, progress_bar, streaming_job, summary
 from pointfield.streaming.memory import DEFAULT_MEMORY, plan
 from pointfield.streaming.select import keep_all, select_to_file
-from pointfield.streaming.tiling import MANIFEST
+from pointfield.streaming.tiling import MANIFEST, tile_memberships
 
 
 def common_layout(templates: list[PointCloud]) -> tuple[np.dtype, dict[str, np.dtype], list[str]]:
@@ -129,12 +129,12 @@ def tile_core(path: Path) -> tuple[float, float, float, int, int]:
 
 def keep_core(core: tuple[float, float, float, int, int], rule: Any, cloud: PointCloud,
               index: np.ndarray) -> PointCloud:
-    """The rule of ``merge --drop-buffers``: the points of the tile's own square (by
-    :func:`~pointfield.streaming.tiling.tile_memberships`' arithmetic, so each point is in exactly
-    one tile's square), then ``rule``."""
+    """The rule of ``merge --drop-buffers``: the points of the tile's own square, as ``tile``
+    found them (:func:`~pointfield.streaming.tiling.tile_memberships` without a buffer: each
+    finite point is in exactly one square), then ``rule``."""
     ox, oy, size, i, j = core
-    square = np.floor((cloud.points[:, :2].astype(np.float64) - [ox, oy]) / size)
-    keep = (square[:, 0] == i) & (square[:, 1] == j)
+    ((squares, rows),) = tile_memberships(cloud.points, size, 0.0, np.array([ox, oy]))
+    keep = rows[(squares == [i, j]).all(axis=1)]
     return rule(cloud.select(keep), index[keep])
 
 

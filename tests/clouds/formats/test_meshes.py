@@ -79,3 +79,21 @@ def test_a_cloud_without_faces_is_not_written_as_a_mesh_format(tmp_path):
     with pytest.raises(FormatError, match="cloud without faces"):
         pointfield.write(tmp_path / "points.glb", PointCloud(np.zeros((3, 3))))
     assert not (tmp_path / "points.glb").exists()
+
+
+def test_stl_has_no_colours_and_says_so(tmp_path):
+    box = coloured_box()
+    mesh = Mesh(box.vertices, {"colors": box.visual.vertex_colors[:, :3]}, faces=box.faces)
+    with pytest.warns(UserWarning, match=r"STL: keeps vertices and triangles; not written: colors"):
+        pointfield.write(tmp_path / "box.stl", mesh)
+    assert "colors" not in pointfield.read(tmp_path / "box.stl").fields
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".obj"])
+def test_sixteen_bit_and_float_colours_are_scaled_to_bytes_with_a_warning(tmp_path, suffix):
+    box = coloured_box()
+    for colours, expected in ((np.tile(np.uint16([65535, 32896, 0]), (len(box.vertices), 1)), [255, 128, 0]),
+                              (np.tile(np.float32([1.0, 0.5, 0.0]), (len(box.vertices), 1)), [255, 128, 0])):
+        with pytest.warns(UserWarning, match=f"colors {colours.dtype}"):
+            pointfield.write(tmp_path / f"box{suffix}", Mesh(box.vertices, {"colors": colours}, faces=box.faces))
+        assert np.all(pointfield.read(tmp_path / f"box{suffix}").fields["colors"] == expected)

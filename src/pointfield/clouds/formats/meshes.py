@@ -20,11 +20,13 @@ trimesh raises for a malformed file become a FormatError naming the file.
 from __future__ import annotations
 
 import warnings
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from pointfield.clouds.cloud import PointCloud
+from pointfield.clouds.formats.ptx import _colors_0_to_255
 from pointfield.clouds.formats.registry import Format, register
 from pointfield.clouds.mesh import Mesh
 from pointfield.errors import FormatError
@@ -67,28 +69,35 @@ def read_mesh(path: Path) -> Mesh | PointCloud:
     return Mesh(vertices, fields, None, metadata, faces=faces)
 
 
-def write_mesh(path: Path, cloud: PointCloud, encoding: str | None = None) -> None:
-    """Write a Mesh's vertices, triangles and ``colors`` with trimesh; a cloud without faces is refused."""
+def write_mesh(path: Path, cloud: PointCloud, encoding: str | None = None, *, file_type: str,
+               keeps_colours: bool = True) -> None:
+    """Write a Mesh's vertices, triangles and (where ``keeps_colours``) ``colors`` with trimesh as
+    ``file_type``; every other field, and colours the format cannot keep, is named in one warning.
+
+    Colours are written as uint8 as PTX writes them (uint16 / 257, floats in [0, 1] x 255, rounded;
+    the change is named in the warning). The registry refuses a cloud without faces
+    (``Format.needs_faces``) before this is called.
+    """
     import trimesh
 
     if path.suffix.lower() == ".gltf":
         raise FormatError(path, "pointfield writes glTF as one .glb file (its buffers inside); name it .glb")
-    if not isinstance(cloud, Mesh) or len(cloud.faces) == 0:
-        raise FormatError(path, f"{path.suffix or 'this format'} holds meshes; a cloud without faces cannot be "
-                                "written as one (write .ply or .off)")
-    colours = cloud.fields.get("colors")
+    notes = []
+    colours = cloud.fields.get("colors") if keeps_colours else None
     if colours is not None:
         colours = np.asarray(colours)
-        if np.issubdtype(colours.dtype, np.floating):
-            colours = np.clip(np.round(colours * 255), 0, 255)
-        colours = colours.astype(np.uint8)
-    dropped = sorted(name for name in cloud.fields if name != "colors")
+        colours = _colors_0_to_255(colours, notes) if colours.ndim == 2 and colours.shape[1] in (3, 4) else None
+    kept = {"colors"} if colours is not None else set()
+    dropped = sorted(name for name in cloud.fields if name not in kept)
+    label = file_type.upper()
     if dropped:
-        warnings.warn(f"{path.suffix.upper().lstrip('.')} keeps vertices, triangles and colours; not written: "
-                      f"{', '.join(dropped)}", stacklevel=2)
+        kept_here = "vertices, triangles and colours" if keeps_colours else "vertices and triangles"
+        notes.append(f"keeps {kept_here}; not written: {', '.join(dropped)}")
+    if notes:
+        warnings.warn(f"{label}: {'; '.join(notes)}", stacklevel=2)
     shape = trimesh.Trimesh(np.asarray(cloud.points, np.float64), cloud.triangles(), vertex_colors=colours,
                             process=False)
-    shape.export(path, file_type=path.suffix.lower().lstrip(".") or encoding)
+    shape.export(path, file_type=file_type)
 
 
 def _vertex_colours(loaded, count: int) -> np.ndarray | None:
@@ -118,37 +127,17 @@ def _encoding(path: Path) -> str:
     return "binary" if _file_type(path) == "glb" else {".gltf": "json", ".obj": "ascii"}.get(suffix, "binary")
 
 
-register(
-    Format(
-        name="gltf",
-        description="glTF 2.0 meshes, .glb (binary, one file) or .gltf (its buffers beside it), through trimesh",
-        suffixes=(".glb", ".gltf"),
-        read=read_mesh,
-        write=write_mesh,
-        encodings=("binary",),
-        signature=looks_like_glb,
-        holds_faces=True,
-    )
-)
-register(
-    Format(
-        name="obj",
-        description="Wavefront OBJ meshes, through trimesh",
-        suffixes=(".obj",),
-        read=read_mesh,
-        write=write_mesh,
-        encodings=("ascii",),
-        holds_faces=True,
-    )
-)
-register(
-    Format(
-        name="stl",
-        description="STL meshes (binary or ascii), through trimesh",
-        suffixes=(".stl",),
-        read=read_mesh,
-        write=write_mesh,
-        encodings=("binary",),
-        holds_faces=True,
-    )
-)
+def _mesh_format(name: str, description: str, suffixes: tuple[str, ...], encoding: str, write_as: str,
+                 keeps_colours: bool, signature=None) -> Format:
+    """One trimesh format: the same reader for all; the writer told trimesh's file type and whether
+    the format keeps vertex colours. Each holds meshes only (a cloud without faces is refused)."""
+    return Format(name=name, description=description, suffixes=suffixes, read=read_mesh,
+                  write=partial(write_mesh, file_type=write_as, keeps_colours=keeps_colours), encodings=(encoding,),
+                  signature=signature, holds_faces=True, needs_faces=True)
+
+
+register(_mesh_format("gltf", "glTF 2.0 meshes, .glb (binary, one file) or .gltf (its buffers beside it), through "
+                      "trimesh", (".glb", ".gltf"), "binary", "glb", True, looks_like_glb))
+register(_mesh_format("obj", "Wavefront OBJ meshes, through trimesh", (".obj",), "ascii", "obj", True))
+register(_mesh_format("stl", "STL meshes (binary or ascii), through trimesh; STL has no vertex colours", (".stl",),
+                      "binary", "stl", False))

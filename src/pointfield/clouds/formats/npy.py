@@ -243,6 +243,18 @@ def _native_copy(values: np.ndarray) -> np.ndarray:
 
 def write_npy(path: Path, cloud: PointCloud | Records, encoding: str | None = None) -> None:
     """Write ``cloud`` as one structured array ``x y z`` + its fields, lossless."""
+    dtype, values_of = _record_layout(cloud)
+    shape = getattr(cloud, "shape", None) or (len(cloud),)
+    records = np.empty(shape, dtype)
+    for name, values in values_of.items():
+        records[name] = values.reshape(*shape, *values.shape[1:])
+    with open(path, "wb") as file:
+        np.lib.format.write_array(file, records, allow_pickle=False)
+
+
+def _record_layout(cloud: PointCloud | Records) -> tuple[np.dtype, dict[str, np.ndarray]]:
+    """The record dtype of ``cloud`` (``x y z`` in the points' dtype, then each field it can hold)
+    and the values of each of its names; the fields it cannot hold are named in a warning."""
     points = getattr(cloud, "points", None)
     layout = []
     values_of = {}
@@ -263,14 +275,9 @@ def write_npy(path: Path, cloud: PointCloud | Records, encoding: str | None = No
         warnings.warn(
             f".npy cannot hold field(s) {', '.join(map(repr, skipped))} (names must be unique "
             f"and not x/y/z, values not Python objects); they were not written",
-            stacklevel=3,
+            stacklevel=4,
         )
-    shape = getattr(cloud, "shape", None) or (len(cloud),)
-    records = np.empty(shape, np.dtype(layout))
-    for name, values in values_of.items():
-        records[name] = values.reshape(*shape, *values.shape[1:])
-    with open(path, "wb") as file:
-        np.lib.format.write_array(file, records, allow_pickle=False)
+    return np.dtype(layout), values_of
 
 
 def open_npy_chunks(path: Path) -> RecordSource | None:
@@ -303,12 +310,7 @@ class NpyChunkWriter(BodyFirstWriter):
 
     def _begin(self, cloud: PointCloud) -> None:
         super()._begin(cloud)
-        probe = self.tmp.with_name(self.tmp.name + ".layout.npy")
-        try:
-            write_npy(probe, cloud.select(slice(0, 0)))
-            self.dtype = np.load(probe, allow_pickle=False).dtype
-        finally:
-            probe.unlink(missing_ok=True)
+        self.dtype, _ = _record_layout(cloud)
 
     def _write(self, cloud: PointCloud) -> None:
         records = np.empty(len(cloud), self.dtype)

@@ -32,7 +32,8 @@ class Format:
     ``suffix_encodings`` the default for suffixes that imply another (``.laz`` -> ``laz``);
     ``aliases`` maps the generic names the command line uses (``ascii``, ``binary``,
     ``compressed``) onto them. ``holds_faces`` says whether the format stores a Mesh's faces,
-    ``holds_records`` whether it stores :class:`Records` (fields without x, y, z).
+    ``needs_faces`` whether it stores only meshes (OBJ, STL, glTF: a cloud without faces is
+    refused), ``holds_records`` whether it stores :class:`Records` (fields without x, y, z).
 
     A format that streams (:mod:`pointfield.clouds.formats.chunked`) also gives
     ``open_chunks(path, **options)``, a :class:`~pointfield.clouds.formats.chunked.ChunkSource` for
@@ -54,6 +55,7 @@ class Format:
     signature: Callable[[bytes], bool] | None = None
     suffix_encodings: Mapping[str, str] = field(default_factory=dict)
     holds_faces: bool = False
+    needs_faces: bool = False
     holds_records: bool = False
     open_chunks: Callable[..., Any] | None = None
     chunk_options: tuple[str, ...] = ()
@@ -154,6 +156,9 @@ def write(
             f"or .ply",
         )
     faces = getattr(cloud, "faces", ())
+    if fmt.needs_faces and not len(faces):
+        raise FormatError(path, f"{path.suffix or fmt.name} holds meshes; a cloud without faces cannot be "
+                                "written as one (write .ply or .off)")
     if len(faces) and not fmt.holds_faces:
         warnings.warn(
             f"{path}: {fmt.name} holds no faces; {len(faces)} faces were not written", stacklevel=2

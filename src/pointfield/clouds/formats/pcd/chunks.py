@@ -16,10 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from pointfield.clouds.cloud import PointCloud, Records
-from pointfield.clouds.formats.binary import record_dtype
 from pointfield.clouds.formats.chunked import BodyFirstWriter, RecordSource
 from pointfield.clouds.formats.pcd.header import MAX_HEADER_BYTES, parse_header
-from pointfield.clouds.formats.pcd.reader import _assemble
+from pointfield.clouds.formats.pcd.reader import _assemble, _binary_records
 from pointfield.clouds.formats.pcd.writer import (
     _columns_to_write,
     _field_for,
@@ -37,21 +36,11 @@ def open_pcd_chunks(path: Path) -> RecordSource | None:
         header = parse_header(file.read(MAX_HEADER_BYTES), path)
     if header.encoding != "binary":
         return None
-    fields, offsets = [], []
-    offset = 0
-    for f in header.fields:
-        if not f.is_padding:
-            if f.is_packed_color:
-                fields.append((f.name, np.dtype("u1"), (4,)))
-            else:
-                fields.append((f.name, f.dtype, () if f.count == 1 else (f.count,)))
-            offsets.append(offset)
-        offset += f.nbytes
-    dtype = record_dtype(fields, "<", offsets, header.point_size)
+    dtype = _binary_records(header)
 
     def convert(records: np.ndarray) -> PointCloud | Records:
         window = replace(header, width=len(records), height=1, points=len(records))
-        return _assemble({name: records[name] for name, *_ in fields}, window, path)
+        return _assemble({name: records[name] for name in dtype.names}, window, path)
 
     return RecordSource(path, dtype, header.data_offset, header.points, convert, "pcd")
 

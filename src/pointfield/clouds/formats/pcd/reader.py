@@ -55,21 +55,26 @@ def read_pcd(path: Path) -> PointCloud | Records:
     return _assemble(columns, header, path)
 
 
-def _read_binary(buffer: Any, header: PcdHeader) -> dict[str, np.ndarray]:
-    """Columns of ``DATA binary``: views into the points' records in ``buffer``, the file."""
+def _binary_records(header: PcdHeader) -> np.dtype:
+    """The structured dtype of one ``DATA binary`` point record: a field per non-padding PCD
+    field at its byte offset, packed colours as their 4 bytes (B G R A, ready for decoding)."""
     fields, offsets = [], []
     offset = 0
     for f in header.fields:
         if not f.is_padding:
-            if f.is_packed_color:  # the word's 4 bytes, B G R A, ready for decoding
+            if f.is_packed_color:
                 fields.append((f.name, np.dtype("u1"), (4,)))
             else:
                 fields.append((f.name, f.dtype, () if f.count == 1 else (f.count,)))
             offsets.append(offset)
         offset += f.nbytes
-    layout = record_dtype(fields, "<", offsets, header.point_size)
-    records = read_records(buffer, layout, header.points, header.data_offset)
-    return {name: records[name] for name, *_ in fields}
+    return record_dtype(fields, "<", offsets, header.point_size)
+
+
+def _read_binary(buffer: Any, header: PcdHeader) -> dict[str, np.ndarray]:
+    """Columns of ``DATA binary``: views into the points' records in ``buffer``, the file."""
+    records = read_records(buffer, _binary_records(header), header.points, header.data_offset)
+    return {name: records[name] for name in records.dtype.names}
 
 
 def _read_compressed(
