@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 import torch
 
+from pointfield.fields.rays import SceneExtent
+from pointfield.fields.training_rays import TrainingRays
 from pointfield.scenes import synthetic_scene
 from pointfield.training.opacity import (
     BACKGROUND_MEAN,
@@ -14,7 +16,6 @@ from pointfield.training.opacity import (
     alpha_loss_weight,
     random_background_loss,
     recomposite,
-    transparency_of,
     uses_random_background,
 )
 
@@ -61,14 +62,15 @@ def test_the_alpha_loss_applies_only_where_the_images_have_alpha():
     frames = np.arange(4)
     assert alpha_loss_weight(None, cube, frames) == DEFAULT_ALPHA_LOSS
     assert alpha_loss_weight(0.5, cube, frames) == 0.5 and alpha_loss_weight(0, cube, frames) == 0
-    transparency = transparency_of(cube, frames)
+    transparency = TrainingRays(cube, frames, SceneExtent(cube.aabb), torch.device("cpu")).transparency
     assert transparency.shape == (4 * 8 * 8,) and 0 < float(transparency.mean()) < 1
+    assert torch.equal(transparency[: 8 * 8], torch.from_numpy(1 - cube.alpha(0).reshape(-1)))
 
     class Photos:  # a scene whose images have no alpha
         def alpha(self, index):
             return None
 
-    assert alpha_loss_weight(None, Photos(), frames) == 0 and transparency_of(Photos(), frames) is None
+    assert alpha_loss_weight(None, Photos(), frames) == 0
     assert alpha_loss_weight(None, cube, frames, default=0.0) == 0  # the fields' default
     assert uses_random_background(None, cube, frames) and not uses_random_background(False, cube, frames)
     assert not uses_random_background(None, Photos(), frames) and not uses_random_background(True, Photos(), frames)

@@ -81,7 +81,6 @@ from pointfield.training.opacity import (
     alpha_loss_weight,
     random_background_loss,
     recomposite,
-    transparency_of,
     uses_random_background,
 )
 from pointfield.training.run import RunDirectory
@@ -207,8 +206,7 @@ class NerfTask(Task):
         self.random_background = uses_random_background(config.get("random_background"), self.scene,
                                                         self.train_frames)
         # 1 - alpha of every training ray; both are off (0 / False) where the images have no alpha.
-        self.transparency = (transparency_of(self.scene, self.train_frames).to(device)
-                             if self.alpha_loss or self.random_background else None)
+        self.transparency = self.rays.transparency if self.alpha_loss or self.random_background else None
         # The background training renders over, and the targets moved onto it: random backgrounds
         # in expectation render over their mean colour, grey (training/opacity.py).
         self.training_background = self.background

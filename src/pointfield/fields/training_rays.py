@@ -24,7 +24,8 @@ from pointfield.scenes.scene import Scene
 class TrainingRays:
     """Every pixel of ``frames`` of ``scene`` (frame by frame, row-major) with its colour, on ``device``.
 
-    ``colors`` ``(R, 3)``; :meth:`rays` gives the rays of any of the R pixels, bounded by
+    ``colors`` ``(R, 3)``; ``transparency`` ``(R,)`` float32 ``1 - alpha`` of each pixel, or None
+    when an image has no alpha (:mod:`pointfield.training.opacity`); :meth:`rays` gives the rays of any of the R pixels, bounded by
     ``extent`` (:meth:`SceneExtent.near_far`), through their centres or jittered inside them.
     Holds three integers a pixel rather than its ray, and makes the rays of each batch when
     asked: a batch's rays cost far less than the field's samples along them.
@@ -42,17 +43,21 @@ class TrainingRays:
         frames = [int(i) for i in frames]
         self.extent = extent
         self.cameras = scene.cameras[frames].to(device)
-        cameras, pixels, colors = [], [], []
+        cameras, pixels, colors, transparencies = [], [], [], []
         for position, frame in enumerate(frames):
             height, width = int(scene.cameras.height[frame]), int(scene.cameras.width[frame])
             rows, columns = torch.meshgrid(torch.arange(height, dtype=torch.int32),
                                            torch.arange(width, dtype=torch.int32), indexing="ij")
             pixels.append(torch.stack([columns.reshape(-1), rows.reshape(-1)], dim=-1))
             cameras.append(torch.full((height * width,), position, dtype=torch.int32))
-            colors.append(torch.from_numpy(scene.image(frame).reshape(-1, 3)))
+            image, alpha = scene.pixels(frame)
+            colors.append(torch.from_numpy(image.reshape(-1, 3)))
+            transparencies.append(None if alpha is None else torch.from_numpy(1 - alpha.reshape(-1)))
         self.camera_of = torch.cat(cameras).to(device)
         self.pixel_of = torch.cat(pixels).to(device)  # (R, 2) integer (u, v): the pixel's corner
         self.colors = torch.cat(colors).to(device)
+        self.transparency = (None if not transparencies or any(t is None for t in transparencies)
+                             else torch.cat(transparencies).to(device))
 
     def __len__(self) -> int:
         return self.colors.shape[0]

@@ -218,8 +218,7 @@ def heldout_scores(
         if images and now + (now - started) / len(images) > until:
             break
         view = as_numpy(render(scene.cameras[[int(frame)]])[0])
-        truth = scene.image(int(frame))
-        alpha = scene.alpha(int(frame))
+        truth, alpha = scene.pixels(int(frame))
         if alpha is not None:
             opacity_errors.append(float(np.abs(view["opacity"] - alpha).mean()))
         images.append(view["rgb"])

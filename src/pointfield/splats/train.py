@@ -213,12 +213,12 @@ class SplatTask(Task):
         # Each view renders at its own size: a posed photo set may hold several (one camera per size).
         self.sizes = [(int(w), int(h)) for w, h in zip(self.scene.cameras.width, self.scene.cameras.height)]
         self.viewmats, self.Ks = camera_matrices(self.scene.cameras, device)
-        self.images = {int(i): torch.from_numpy(self.scene.image(int(i))).to(device) for i in self.train_frames}
+        pixels = {int(i): self.scene.pixels(int(i)) for i in self.train_frames}  # (image, alpha or None)
+        self.images = {i: torch.from_numpy(image).to(device) for i, (image, _) in pixels.items()}
         self.background = torch.as_tensor(self.scene.background, dtype=torch.float32, device=device)
         # Where the images have alpha, the rendered opacity is trained towards it too (module docstring).
         self.alpha_loss = alpha_loss_weight(config.get("alpha_loss"), self.scene, self.train_frames)
-        self.alphas = ({int(i): torch.from_numpy(self.scene.alpha(int(i))).to(device) for i in self.train_frames}
-                       if self.alpha_loss else {})
+        self.alphas = {i: torch.from_numpy(alpha).to(device) for i, (_, alpha) in pixels.items()} if self.alpha_loss else {}
         # The geometry terms, where asked for (a run made before they existed has no such keys).
         self.opacity_entropy = float(config.get("opacity_entropy") or 0.0)
         self.flatness = float(config.get("flatness") or 0.0)

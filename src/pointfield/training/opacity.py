@@ -28,7 +28,6 @@ on colour alone.
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 
 from pointfield.scenes.scene import Scene
@@ -58,15 +57,6 @@ def alpha_loss_weight(setting: float | None, scene: Scene, frames, default: floa
 def uses_random_background(setting: bool | None, scene: Scene, frames) -> bool:
     """Whether a field trains on random backgrounds: ``setting`` (None: where the images have alpha)."""
     return has_alpha(scene, frames) and (setting is None or bool(setting))
-
-
-def transparency_of(scene: Scene, frames) -> torch.Tensor | None:
-    """``(sum of H W,)`` float32 ``1 - alpha`` of every pixel of ``frames`` (row-major, frame after frame),
-    or None when the images have no alpha."""
-    alphas = [scene.alpha(int(index)) for index in frames]
-    if any(alpha is None for alpha in alphas):
-        return None
-    return torch.from_numpy(np.concatenate([1 - alpha.reshape(-1) for alpha in alphas]).astype(np.float32))
 
 
 def random_background_loss(opacity: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
