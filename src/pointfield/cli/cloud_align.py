@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -59,6 +60,13 @@ def poses_path(out: Path) -> Path:
     return out.with_name(out.name[: len(out.name) - len(out.suffix)] + ".poses.json")
 
 
+def matrix_rows_json(document: dict) -> str:
+    """``document`` as indented JSON with each row of a 4 x 4 matrix on one line, as a reader scans it."""
+    text = json.dumps(document, indent=2)
+    return re.sub(r"\[\s+([-+0-9.eE]+(?:,\s+[-+0-9.eE]+)*)\s+\]",
+                  lambda m: "[" + ", ".join(v.strip() for v in m.group(1).split(",")) + "]", text)
+
+
 def run_align(args: argparse.Namespace) -> int:
     from pointfield.atomic import atomic_path
     from pointfield.registration import align
@@ -71,7 +79,7 @@ def run_align(args: argparse.Namespace) -> int:
     poses_file = args.poses or poses_path(args.out)
     if poses_file.resolve() == args.out.resolve() or args.out.resolve() in {s.resolve() for s in args.scans}:
         raise PointfieldError(f"{args.out}: --out must differ from the scans and from --poses")
-    clouds, notes = read_scans(args.scans, args.voxel, args.memory, "alignment")
+    clouds, notes = read_scans(args.scans, args.voxel, args.memory, "alignment", scratch=args.out.resolve().parent)
     names = [s.name if len({p.name for p in args.scans}) == len(args.scans) else str(s) for s in args.scans]
     result = align(clouds, method=args.method, voxel=args.voxel, max_distance=args.max_distance,
                    min_fitness=args.min_fitness, kernel=args.kernel, names=names, seed=args.seed)
@@ -85,7 +93,7 @@ def run_align(args: argparse.Namespace) -> int:
     document = result.as_dict([str(s) for s in args.scans])
     document["merged"] = {"file": str(args.out), "points": written}
     with atomic_path(poses_file) as tmp:
-        tmp.write_text(json.dumps(document, indent=2) + "\n")
+        tmp.write_text(matrix_rows_json(document) + "\n")
     kept = len(args.scans) - len(result.left_out)
     left = f"; left out: {', '.join(names[i] for i in result.left_out)}" if result.left_out else ""
     print(f"wrote {args.out}: {written:,} points from {kept} scans in {names[result.reference]}'s frame{left}")

@@ -73,7 +73,8 @@ def run_register(args: argparse.Namespace) -> int:
     from pointfield.registration import aligned, check_cloud, check_transformation, register
     from pointfield.registration.streamed import read_scans, write_moved
 
-    (source, target), thinned = read_scans([args.source, args.target], args.voxel, args.memory)
+    (source, target), thinned = read_scans([args.source, args.target], args.voxel, args.memory,
+                                            scratch=None if args.out is None else args.out.resolve().parent)
     check_cloud(source, str(args.source))
     check_cloud(target, str(args.target))
     init = None if args.init is None else check_transformation(read_init(args.init), str(args.init))

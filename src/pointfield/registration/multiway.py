@@ -17,15 +17,13 @@
    that look alike, registered wrongly with a fair fitness) would make the true loop closures
    look wrong, so a second tree is tried, grown by fitness alone, and the one whose optimised
    poses more pairs agree with (the sum of the fitness of the edges kept) is taken.
-4. **Optimisation.** :func:`~pointfield.registration.pose_graph.optimize_pose_graph`; a loop closure
-   that disagrees with the rest is pruned, and named in the notes. open3d's line process prunes
-   a loop closure whose correspondences the poses put more than ``sqrt(preference_loop_closure)``
-   apart (RMS), in the clouds' units (its default 1: a metre); here that distance follows the
-   data, ``loop_tolerance`` inlier distances (default :data:`LOOP_TOLERANCE`), so that a bunny
-   in metres and a city in millimetres are judged alike: ``preference_loop_closure =
-   (loop_tolerance * d)^2``. It is measured from the odometry chain first, so a true loop
-   closure survives a drift of up to that much, and a false one (from scans that only look
-   alike) is weighed down before it can pull the chain.
+4. **Optimisation.** :func:`~pointfield.registration.pose_graph.optimize_pose_graph` with the
+   inlier distance ``d`` and ``preference_loop_closure`` 5 (open3d's reconstruction system's for
+   loop closures between fragments): a loop closure whose correspondences the poses put more
+   than ``sqrt(5) d`` apart (RMS) is pruned, and named in the notes. The weights are measured
+   from the odometry chain first, so a true loop closure survives a drift of up to that much,
+   and a false one (from scans that only look alike) is weighed down before it can pull the
+   chain.
 
 Coordinates are shifted by the reference scan's centroid (rounded) while registering, so that
 survey-sized coordinates (UTM) neither lose float precision nor make the information matrices,
@@ -48,8 +46,8 @@ from pointfield.registration.pairwise import check_cloud, default_voxel, registe
 from pointfield.registration.pose_graph import PoseGraph, PoseGraphEdge, edge_residuals, optimize_pose_graph
 from pointfield.registration.result import LOW_FITNESS
 
-LOOP_TOLERANCE = 5.0
-"""A loop closure whose correspondences end more than this many inlier distances apart (RMS) is pruned."""
+PREFERENCE_LOOP_CLOSURE = 5.0
+"""open3d's reconstruction system's ``preference_loop_closure`` for loop closures between fragments."""
 
 
 @dataclass(eq=False)
@@ -163,14 +161,15 @@ def _spanning_tree(reference: int, group: list[int], linked: list[AlignedPair], 
 
 def align(clouds: Sequence[PointCloud | np.ndarray], method: str = "auto", voxel: float | None = None,
           max_distance: float | None = None, min_fitness: float = LOW_FITNESS, kernel: str | None = None,
-          names: Sequence[str] | None = None, seed: int = 0, loop_tolerance: float = LOOP_TOLERANCE) -> AlignResult:
+          names: Sequence[str] | None = None, seed: int = 0,
+          preference_loop_closure: float = PREFERENCE_LOOP_CLOSURE) -> AlignResult:
     """Poses that put ``clouds`` into one frame, consistent over every overlapping pair (module docstring).
 
     ``clouds``: two or more clouds or ``(N, 3)`` arrays. ``method``, ``voxel``, ``max_distance``,
     ``kernel``, ``seed``: as :func:`~pointfield.registration.register`, for every pair (``voxel``
     defaults to the first scan's). ``min_fitness``: the fitness at which a pair counts as
     overlapping. ``names``: what errors and warnings call the scans (file names).
-    ``loop_tolerance``: see the module docstring.
+    ``preference_loop_closure``: the pose graph's (module docstring).
 
     A scan that overlaps none of the aligned ones is left out with a warning.
 
@@ -186,8 +185,8 @@ def align(clouds: Sequence[PointCloud | np.ndarray], method: str = "auto", voxel
         raise PointfieldError(f"align: {len(names)} names for {len(clouds)} scans")
     if not 0.0 <= min_fitness <= 1.0:
         raise PointfieldError(f"min_fitness must be between 0 and 1, got {min_fitness}")
-    if not loop_tolerance > 0:
-        raise PointfieldError(f"loop_tolerance must be positive, got {loop_tolerance}")
+    if not preference_loop_closure > 0:
+        raise PointfieldError(f"preference_loop_closure must be positive, got {preference_loop_closure}")
     clouds = [c if isinstance(c, PointCloud) else PointCloud(np.asarray(c, np.float64).reshape(-1, 3)) for c in clouds]
     scans = [check_cloud(c, n) for c, n in zip(clouds, names)]
     notes = []
@@ -242,8 +241,8 @@ def align(clouds: Sequence[PointCloud | np.ndarray], method: str = "auto", voxel
         start = np.stack([chained[scan] for scan in group])
         edges = [PoseGraphEdge(index[p.source], index[p.target], p.transformation, p.information,
                                uncertain=p not in tree) for p in group_pairs]
-        optimised = optimize_pose_graph(PoseGraph(start, edges), reference=0,
-                                        preference_loop_closure=(loop_tolerance * distance) ** 2)
+        optimised = optimize_pose_graph(PoseGraph(start, edges), distance, reference=0,
+                                        preference_loop_closure=preference_loop_closure)
         support = sum(p.fitness for p, w in zip(group_pairs, optimised.weights) if w > 0)
         trials.append((support, tree, start, edges, optimised, rule))
     support, tree, start, edges, optimised, rule = max(trials, key=lambda t: t[0])  # the first on a tie

@@ -26,8 +26,16 @@ squares problem. :func:`optimize_pose_graph` alternates the two (iteratively rew
 squares, each solve a trust-region Levenberg-Marquardt over left perturbations ``P_i <-
 exp(xi_i) P_i`` with scipy's ``least_squares`` and a sparse Jacobian), then prunes the loop
 closures whose ``l`` ended below the threshold and solves once more without them -- open3d's
-scheme, with its defaults: ``mu = preference_loop_closure * mean(Lambda[5, 5])`` (the mean number
-of correspondences behind an edge), ``preference_loop_closure = 1``, ``edge_prune_threshold = 0.25``.
+scheme, with its weight ``mu = preference_loop_closure * d^2 * mean(Lambda[5, 5])``: ``d`` the
+inlier distance of the registrations (open3d's ``max_correspondence_distance``) and
+``Lambda[5, 5]`` an edge's number of correspondences. ``l`` falls to the prune threshold 0.25
+where ``r^T Lambda r = mu``: where the poses put an edge's correspondences about
+``sqrt(preference_loop_closure) * d`` apart (RMS) -- the loop closure's tolerance, in inlier
+distances.
+
+One choice differs from open3d: the first weights come from the starting poses (the odometry
+chain) rather than 1, so a false loop closure is weighed down before it can pull the chain
+(open3d starts at 1 but takes one damped step at a time; a full solve at 1 would follow it).
 """
 
 from __future__ import annotations
@@ -148,13 +156,15 @@ def graph_cost(poses: np.ndarray, graph_edges: list[PoseGraphEdge], weights: np.
     return float(np.sum(weights * squared) + np.sum(np.where(uncertain, mu * (np.sqrt(weights) - 1) ** 2, 0.0)))
 
 
-def optimize_pose_graph(graph: PoseGraph, reference: int = 0, preference_loop_closure: float = 1.0,
-                        edge_prune_threshold: float = 0.25, max_rounds: int = 30,
-                        tolerance: float = 1e-10) -> PoseGraphOptimization:
+def optimize_pose_graph(graph: PoseGraph, max_correspondence_distance: float = 1.0, reference: int = 0,
+                        preference_loop_closure: float = 1.0, edge_prune_threshold: float = 0.25,
+                        max_rounds: int = 30, tolerance: float = 1e-10) -> PoseGraphOptimization:
     """Globally consistent poses for ``graph`` (module docstring), node ``reference`` held where it is.
 
-    ``graph.poses`` is the starting point (the odometry chain); it is not changed. Reweighting
-    stops when no weight moves by more than 1e-4, or after ``max_rounds``.
+    ``graph.poses`` is the starting point (the odometry chain); it is not changed. The options are
+    open3d's ``GlobalOptimizationOption``'s, with its defaults but for ``max_correspondence_distance``,
+    the edges' inlier distance ``d``, which the caller knows. Reweighting stops when no weight moves
+    by more than 1e-4, or after ``max_rounds``.
 
     Example: three scans whose odometry drifts, and a loop closure that says where scan 2 is::
 
@@ -179,10 +189,9 @@ def optimize_pose_graph(graph: PoseGraph, reference: int = 0, preference_loop_cl
     edges = list(graph.edges)
     if not edges:
         return PoseGraphOptimization(poses.copy(), np.zeros(0), [], 0.0, 0)
-    mu = preference_loop_closure * float(np.mean([e.information[5, 5] for e in edges]))
-    # The first weights from the starting poses: the odometry is trusted until the loop closures agree
-    # with it, so that a false loop closure is weighed down before it can drag the chain (open3d
-    # starts from 1 but takes one damped step at a time; a full solve at 1 would follow a bad closure).
+    if not (np.isfinite(max_correspondence_distance) and max_correspondence_distance > 0):
+        raise PointfieldError(f"max_correspondence_distance must be positive, got {max_correspondence_distance}")
+    mu = preference_loop_closure * max_correspondence_distance**2 * float(np.mean([e.information[5, 5] for e in edges]))
     weights = line_process(poses, edges, mu, edge_prune_threshold)
     rounds, settled = 0, False
     while rounds < max_rounds and not settled:

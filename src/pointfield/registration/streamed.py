@@ -21,6 +21,7 @@ would fit (points on a surface fall with the square of the voxel).
 from __future__ import annotations
 
 import os
+import tempfile
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -32,7 +33,7 @@ from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.formats.chunked import concatenate
 from pointfield.errors import PointfieldError
 from pointfield.registration.pairwise import aligned, check_transformation
-from pointfield.streaming.chunks import open_source
+from pointfield.streaming.chunks import ChunkSource, StreamingFallback, WholeSource, open_source
 from pointfield.streaming.jobs import bytes_per_point, finite_bounds, indexed_chunks, scratch_folder, streaming_job
 from pointfield.streaming.memory import BASELINE_BYTES, parse_memory, plan, resident_bytes
 from pointfield.streaming.merging import common_layout, conform
@@ -61,9 +62,9 @@ def _largest_pair(counts: Sequence[int]) -> int:
     return sum(sorted(counts)[-2:])
 
 
-def _thin(path: Path, voxel: float, budget: int) -> PointCloud:
-    """``path`` thinned to one centroid per voxel of ``voxel``, streamed (points, normals and colours only)."""
-    source = open_source(path)
+def _thin(source: ChunkSource, voxel: float, budget: int, scratch: str | os.PathLike[str]) -> PointCloud:
+    """``source`` thinned to one centroid per voxel of ``voxel``, streamed (points, normals and colours only)."""
+    path = source.path
     template = source.read(0, 0)
     kept = {name: template.fields[name] for name in KEPT_FIELDS if name in template.fields}
     template = PointCloud(template.points.astype(np.float64), kept, None, {})
@@ -77,38 +78,43 @@ def _thin(path: Path, voxel: float, budget: int) -> PointCloud:
         for chunk, index in indexed_chunks(source, memory.chunk_points):
             yield PointCloud(chunk.points.astype(np.float64), {n: chunk.fields[n] for n in kept}, None, {}), index
 
-    with scratch_folder(path) as folder:
+    with scratch_folder(path, scratch) as folder:
         parts = list(reduce_voxels(chunks(), grid, template, "centroid", memory.state_bytes, folder,
                                    expected_points=source.count))
     return concatenate(parts) if parts else template
 
 
 def read_scans(paths: Sequence[str | os.PathLike[str]], voxel: float | None = None,
-               memory: str | int | None = None, what: str = "registration") -> tuple[list[PointCloud], list[str]]:
+               memory: str | int | None = None, what: str = "registration",
+               scratch: str | os.PathLike[str] | None = None) -> tuple[list[PointCloud], list[str]]:
     """``(clouds, notes)``: the scans at ``paths``, read whole when registering them fits ``memory``,
     else thinned to ``voxel`` while streaming (module docstring).
 
     ``voxel`` None: thinning uses 1/200 of the first scan's bounding-box diagonal (the floor
     :func:`~pointfield.registration.default_voxel` puts under the voxel). ``memory`` None: no
-    limit, every scan read whole. A :class:`PointfieldError` when the thinned scans do not fit.
+    limit, every scan read whole. ``scratch``: the folder where thinning parks voxels it cannot hold
+    (default: the system's temporary folder). A :class:`PointfieldError` when the thinned scans do not fit.
     """
     paths = [Path(p) for p in paths]
     if memory is None:
         return [read(p) for p in paths], []
     budget = parse_memory(memory)
     usable = budget - max(BASELINE_BYTES, resident_bytes())
-    sources = [open_source(p) for p in paths]
+    with warnings.catch_warnings():
+        # A text file is read whole to be counted, as it would have been to be registered: no news.
+        warnings.simplefilter("ignore", StreamingFallback)
+        sources = [open_source(p) for p in paths]
     counts = [s.count for s in sources]
     layouts = [bytes_per_point(s.read(0, 0)) for s in sources]
     need = registration_bytes(counts, layouts, _largest_pair(counts))
     if need <= usable:
-        return [read(p) for p in paths], []
+        return [s.cloud if isinstance(s, WholeSource) else read(p) for s, p in zip(sources, paths)], []
     notes = []
     if voxel is None:
         source = sources[0]
         low, high, _ = finite_bounds(source, plan(budget, layouts[0]).chunk_points)
         voxel = float(np.linalg.norm(high - low)) / 200.0
-        if not voxel > 0:
+        if not (np.isfinite(voxel) and voxel > 0):
             raise PointfieldError(f"{paths[0]}: its points have no extent; registration needs a cloud with extent")
         reason = f"voxel {voxel:.4g} (1/200 of {paths[0].name}'s diagonal; set --voxel to choose)"
     elif not (np.isfinite(voxel) and voxel > 0):
@@ -116,8 +122,8 @@ def read_scans(paths: Sequence[str | os.PathLike[str]], voxel: float | None = No
     else:
         reason = f"--voxel {voxel:g}"
     clouds: list[PointCloud] = []
-    for k, path in enumerate(paths):
-        clouds.append(_thin(path, voxel, budget))
+    for k, source in enumerate(sources):
+        clouds.append(_thin(source, voxel, budget, scratch or tempfile.gettempdir()))
         # The scans still to come, estimated at the share of their points the ones read kept.
         kept_share = sum(len(c) for c in clouds) / max(1, sum(counts[: k + 1]))
         estimate = [len(c) for c in clouds] + [int(kept_share * n) for n in counts[k + 1:]]
