@@ -44,7 +44,7 @@ from pointfield.clouds.cloud import PointCloud
 from pointfield.errors import PointfieldError
 from pointfield.registration.pairwise import check_cloud, default_voxel, register
 from pointfield.registration.pose_graph import PoseGraph, PoseGraphEdge, edge_residuals, optimize_pose_graph
-from pointfield.registration.result import LOW_FITNESS
+from pointfield.registration.result import LOW_FITNESS, skew
 
 PREFERENCE_LOOP_CLOSURE = 5.0
 """open3d's reconstruction system's ``preference_loop_closure`` for loop closures between fragments."""
@@ -53,7 +53,7 @@ PREFERENCE_LOOP_CLOSURE = 5.0
 @dataclass(eq=False)
 class AlignedPair:
     """Scan ``source`` registered onto scan ``target``: the motion (source into target's frame), its
-    ``fitness``, ``rmse`` and ``information``; ``linked`` when the fitness reaches the threshold;
+    ``fitness``, ``rmse`` and ``information`` (over a left twist in the scans' own coordinates); ``linked`` when the fitness reaches the threshold;
     ``kind`` ``"odometry"``, ``"loop closure"`` or ``""`` (unlinked, or outside the aligned group);
     ``weight``, the line-process weight the optimisation gave it (0: pruned); ``error`` the
     reason a pair could not be registered at all (too few points at the voxel)."""
@@ -269,8 +269,13 @@ def align(clouds: Sequence[PointCloud | np.ndarray], method: str = "auto", voxel
     initial: list[np.ndarray | None] = [None] * len(scans)
     for scan, k in index.items():
         poses[scan], initial[scan] = unshift(optimised.poses[k]), unshift(start[k])
+    # A left twist [omega, t] on shifted coordinates is [omega, t + c x omega] on the scans' own:
+    # S exp(xi) S^-1 p = p + omega x p + t - omega x c. The information follows: A^-T Lambda A^-1.
+    twist = np.eye(6)
+    twist[3:, :3] = -skew(offset)
     for pair in pairs:
         pair.transformation = unshift(pair.transformation)
+        pair.information = twist.T @ pair.information @ twist
     return AlignResult(poses, initial, reference, pairs, float(voxel), notes)
 
 

@@ -23,8 +23,8 @@ and the cost, with the line process of Choi et al. on the uncertain edges,
 For fixed poses the best ``l`` of a loop edge is ``l = (mu / (mu + r^T Lambda r))^2`` (0 where that
 falls below ``edge_prune_threshold``); for fixed ``l`` the poses are a weighted nonlinear least
 squares problem. :func:`optimize_pose_graph` alternates the two (iteratively reweighted least
-squares, each solve a trust-region Levenberg-Marquardt over left perturbations ``P_i <-
-exp(xi_i) P_i`` with scipy's ``least_squares`` and a sparse Jacobian), then prunes the loop
+squares, each solve scipy's trust-region ``least_squares`` over left perturbations ``P_i <-
+exp(xi_i) P_i``, with the sparse first-order Jacobian of :func:`adjoint_of_inverse`), then prunes the loop
 closures whose ``l`` ended below the threshold and solves once more without them -- open3d's
 scheme, with its weight ``mu = preference_loop_closure * d^2 * mean(Lambda[5, 5])``: ``d`` the
 inlier distance of the registrations (open3d's ``max_correspondence_distance``) and
@@ -44,10 +44,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
+from scipy.sparse import csr_matrix
 from scipy.spatial.transform import Rotation
 
 from pointfield.errors import PointfieldError
+from pointfield.registration.result import skew
 
 
 @dataclass(eq=False)
@@ -112,9 +113,27 @@ def _perturbed(base: np.ndarray, free: np.ndarray, x: np.ndarray) -> np.ndarray:
     return poses
 
 
+def adjoint_of_inverse(pose: np.ndarray) -> np.ndarray:
+    """``(6, 6)`` ``Ad(P^-1)`` for twists ``[omega, t]``: ``P^-1 exp(xi) P = exp(Ad(P^-1) xi)``.
+
+    With ``P^-1 = (R', t')``, ``R' = R^T``, ``t' = -R^T t``: ``Ad = [[R', 0], [[t']_x R', R']]``.
+    """
+    rotation = pose[:3, :3].T
+    out = np.zeros((6, 6))
+    out[:3, :3] = out[3:, 3:] = rotation
+    out[3:, :3] = skew(-rotation @ pose[:3, 3]) @ rotation
+    return out
+
+
 def _solve(poses: np.ndarray, graph_edges: list[PoseGraphEdge], weights: np.ndarray, reference: int,
            tolerance: float) -> np.ndarray:
-    """Poses minimising ``sum w_e |W_e r_e|^2`` with node ``reference`` fixed (one Levenberg-Marquardt solve)."""
+    """Poses minimising ``sum w_e |W_e r_e|^2`` with node ``reference`` fixed (one trust-region solve).
+
+    The Jacobian is the first-order one: moving ``P_i`` by a left twist ``xi`` changes ``E_ij`` by
+    ``exp(Ad(P_j^-1) xi)`` on the left, and moving ``P_j`` by ``exp(-Ad(P_j^-1) xi)``, so
+    ``dr / dxi_i = Ad(P_j^-1) = -dr / dxi_j`` (exact where the residual is 0, close near it; the
+    residual itself is exact, so the solve converges to the true optimum).
+    """
     free = np.array([i for i in range(len(poses)) if i != reference], np.int64)
     active = [e for e, w in zip(graph_edges, weights) if w > 0]
     if not len(free) or not active:
@@ -122,18 +141,24 @@ def _solve(poses: np.ndarray, graph_edges: list[PoseGraphEdge], weights: np.ndar
     scale = np.sqrt(np.array([w for w in weights if w > 0]))
     whiten = np.stack([whitening(e.information) for e in active]) * scale[:, None, None]
     column = {int(node): k for k, node in enumerate(free)}
-    sparsity = lil_matrix((6 * len(active), 6 * len(free)), dtype=np.int8)
-    for row, edge in enumerate(active):
-        for node in (edge.source, edge.target):
-            if node in column:
-                sparsity[6 * row: 6 * row + 6, 6 * column[node]: 6 * column[node] + 6] = 1
+    # The Jacobian's 6 x 6 blocks, in CSR order: each edge's rows, its source block then its target block.
+    blocks = [(row, column[node], sign) for row, edge in enumerate(active)
+              for node, sign in ((edge.source, 1.0), (edge.target, -1.0)) if node in column]
+    rows = np.array([6 * r + a for r, _, _ in blocks for a in range(6) for _ in range(6)])
+    columns = np.array([6 * c + b for _, c, _ in blocks for _ in range(6) for b in range(6)])
 
     def residuals(x: np.ndarray) -> np.ndarray:
         r = edge_residuals(_perturbed(poses, free, x), active)
         return np.einsum("eab,eb->ea", whiten, r).ravel()
 
-    solved = least_squares(residuals, np.zeros(6 * len(free)), jac_sparsity=sparsity, method="trf",
-                           x_scale="jac", xtol=tolerance, ftol=tolerance, gtol=tolerance)
+    def jacobian(x: np.ndarray) -> csr_matrix:
+        moved = _perturbed(poses, free, x)
+        values = [sign * (whiten[row] @ adjoint_of_inverse(moved[active[row].target])) for row, _, sign in blocks]
+        return csr_matrix((np.concatenate([v.ravel() for v in values]), (rows, columns)),
+                          shape=(6 * len(active), 6 * len(free)))
+
+    solved = least_squares(residuals, np.zeros(6 * len(free)), jac=jacobian, method="trf", x_scale="jac",
+                           xtol=tolerance, ftol=tolerance, gtol=tolerance)
     return _perturbed(poses, free, solved.x)
 
 
