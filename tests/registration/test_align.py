@@ -182,7 +182,7 @@ def test_cloud_align_refuses_in_one_line_naming_the_voxel_that_fits(scan_files, 
                  "--memory", "256M"])
     err = capsys.readouterr().err
     assert code != 0 and err.count("\n") == 1
-    assert "past --memory 256 MiB; give --voxel" in err and not (tmp_path / "m.ply").exists()
+    assert "MiB that --memory 256 MiB leaves beside the interpreter; give --voxel 0.0" in err and not (tmp_path / "m.ply").exists()
 
 
 def test_cloud_register_holds_to_the_memory_budget_too(scan_files, tmp_path, capsys, monkeypatch):

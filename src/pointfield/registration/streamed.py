@@ -99,7 +99,7 @@ def read_scans(paths: Sequence[str | os.PathLike[str]], voxel: float | None = No
     if memory is None:
         return [read(p) for p in paths], []
     budget = parse_memory(memory)
-    usable = budget - max(BASELINE_BYTES, resident_bytes())
+    usable = max(budget - max(BASELINE_BYTES, resident_bytes()), 0)
     with warnings.catch_warnings():
         # A text file is read whole to be counted, as it would have been to be registered: no news.
         warnings.simplefilter("ignore", StreamingFallback)
@@ -132,8 +132,9 @@ def read_scans(paths: Sequence[str | os.PathLike[str]], voxel: float | None = No
             fit = voxel * np.sqrt(thinned / max(usable, 1)) * 1.1
             raise PointfieldError(
                 f"{what} of {', '.join(p.name for p in paths)}: thinned to voxel {voxel:.4g} the scans hold about "
-                f"{sum(estimate):,} points, {thinned / 2**20:,.0f} MiB for {what}, past --memory {budget / 2**20:,.0f} "
-                f"MiB; give --voxel {fit:.3g} or a larger --memory")
+                f"{sum(estimate):,} points, {thinned / 2**20:,.0f} MiB for {what}, past the {usable / 2**20:,.0f} MiB "
+                f"that --memory {budget / 2**20:,.0f} MiB leaves beside the interpreter; give --voxel {fit:.3g} or a "
+                "larger --memory")
     notes.append(f"{sum(counts):,} points would take about {need / 2**20:,.0f} MiB in {what}, past --memory "
                  f"{budget / 2**20:,.0f} MiB: read thinned while streaming to {reason}, "
                  f"{sum(len(c) for c in clouds):,} points")
