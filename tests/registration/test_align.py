@@ -92,7 +92,7 @@ def test_a_scan_that_overlaps_none_is_left_out_with_a_warning():
     scans, truth = ring_scans(count=4, seed=0)
     elsewhere = PointCloud(np.random.default_rng(5).normal(size=(2000, 3)).astype(np.float32) + [5.0, 0, 0])
     with pytest.warns(UserWarning, match=r"scan 4: overlaps none of the aligned scans .*left out"):
-        result = align([*scans, elsewhere], method="gicp", voxel=0.02)
+        result = pointfield.align([*scans, elsewhere], method="gicp", voxel=0.02)
     assert result.left_out == [4] and result.poses[4] is None
     assert pose_errors(result.poses[3], truth[3])[0] < 0.2
 
@@ -195,6 +195,17 @@ def test_cloud_register_holds_to_the_memory_budget_too(scan_files, tmp_path, cap
     found = np.array(json.loads(capsys.readouterr().out)["transformation"])
     assert pose_errors(found, truth[1])[0] < 0.3
     assert len(pointfield.read(out)) == 3000
+
+
+def test_cloud_register_counts_text_scans_without_reading_them_twice_or_warning(scan_files, tmp_path, capsys):
+    paths, _ = scan_files
+    text = []
+    for path in paths[:2]:
+        text.append(tmp_path / f"{path.stem}.xyz")
+        pointfield.write(text[-1], pointfield.read(path))
+    assert main(["cloud", "register", *map(str, text), "--method", "gicp", "--init", _identity(tmp_path),
+                 "--voxel", "0.02"]) == 0
+    assert "warning" not in capsys.readouterr().err
 
 
 def _identity(folder) -> str:
