@@ -14,7 +14,7 @@ import pointfield
 from pointfield.cli import main
 from pointfield.clouds.cloud import PointCloud
 from pointfield.errors import PointfieldError
-from pointfield.registration import PoseGraph, PoseGraphEdge, align, optimize_pose_graph, streamed
+from pointfield.registration import PoseGraph, PoseGraphEdge, align, aligned, optimize_pose_graph, streamed
 
 
 def shift(x: float, angle: float = 0.0) -> np.ndarray:
@@ -94,6 +94,8 @@ def test_a_scan_that_overlaps_none_is_left_out_with_a_warning():
     with pytest.warns(UserWarning, match=r"scan 4: overlaps none of the aligned scans .*left out"):
         result = pointfield.align([*scans, elsewhere], method="gicp", voxel=0.02)
     assert result.left_out == [4] and result.poses[4] is None
+    # From identity, ICP cannot reach a scan 4 units off: those pairs are not even tried.
+    assert all(p.error.startswith("not tried") for p in result.pairs if 4 in (p.source, p.target))
     assert pose_errors(result.poses[3], truth[3])[0] < 0.2
 
 
@@ -157,6 +159,17 @@ def test_cloud_align_writes_the_merged_cloud_and_the_poses_beside_it(scan_files,
         assert np.abs(merged.points[mine] - expected).max() < 0.003
         assert pose_errors(np.array(document["scans"][i]["pose"]), truth[i])[0] < 0.2
     assert {p["kind"] for p in document["pairs"] if p["linked"]} == {"odometry", "loop closure"}
+
+
+def test_the_merge_in_chunks_is_the_merge_in_memory(scan_files, tmp_path):
+    paths, truth = scan_files
+    out = tmp_path / "merged.ply"
+    written = streamed.write_moved(paths[:4], truth, out, points=700)  # 3,000-point scans in 5 chunks each
+    merged, expected = pointfield.read(out), [aligned(pointfield.read(p), t) for p, t in zip(paths[:4], truth)]
+    assert written == len(merged) == 12_000
+    np.testing.assert_array_equal(merged.points, np.concatenate([e.points for e in expected]))
+    for name in ("colors", "intensity"):
+        np.testing.assert_array_equal(merged.fields[name], np.concatenate([e.fields[name] for e in expected]))
 
 
 def test_cloud_align_thins_scans_past_the_memory_budget_while_reading(scan_files, tmp_path, capsys, monkeypatch):

@@ -2,7 +2,9 @@
 
 1. **Pairs.** Every pair ``i < j`` is registered with :func:`~pointfield.registration.register`
    (scan i onto scan j, one voxel for all pairs so that every fitness is measured at the same
-   inlier distance). A pair is *linked* when its fitness reaches ``min_fitness`` (default
+   inlier distance; with a fine method, which starts from identity, a pair whose bounding boxes
+   are farther apart than its coarsest inlier distance, ``4 voxel``, cannot link and is not
+   tried). A pair is *linked* when its fitness reaches ``min_fitness`` (default
    :data:`~pointfield.registration.result.LOW_FITNESS`, the fitness below which ``register``
    warns); others are taken as not overlapping.
 2. **Which scans.** The linked pairs split the scans into connected groups; the largest is
@@ -46,6 +48,8 @@ from pointfield.registration.pairwise import check_cloud, default_voxel, registe
 from pointfield.registration.pose_graph import PoseGraph, PoseGraphEdge, edge_residuals, optimize_pose_graph
 from pointfield.registration.result import LOW_FITNESS, skew
 
+FINE_METHODS = ("icp", "plane", "gicp", "colored")
+"""The methods that start every pair from identity (the others run global registration first)."""
 PREFERENCE_LOOP_CLOSURE = 5.0
 """open3d's reconstruction system's ``preference_loop_closure`` for loop closures between fragments."""
 
@@ -199,9 +203,19 @@ def align(clouds: Sequence[PointCloud | np.ndarray], method: str = "auto", voxel
     shifted = [PointCloud(s.points - offset, {k: v for k, v in (("normals", s.normals),) if v is not None}
                           | ({"colors": _grey(s.intensity)} if s.intensity is not None else {})) for s in scans]
 
+    # The fine methods start every pair from identity, and find no partner farther than their coarsest
+    # inlier distance: pairs whose boxes are farther apart than that cannot link, and are not tried.
+    reach = max(4 * voxel, voxel if max_distance is None else max_distance) if method in FINE_METHODS else np.inf
+    boxes = [(s.points.min(axis=0), s.points.max(axis=0)) for s in scans]
     pairs = []
     for i in range(len(scans)):
         for j in range(i + 1, len(scans)):
+            gap = float(np.max(np.maximum(boxes[i][0] - boxes[j][1], boxes[j][0] - boxes[i][1])))
+            if gap > reach:
+                pairs.append(AlignedPair(i, j, np.eye(4), 0.0, 0.0, np.zeros((6, 6)), False,
+                                         error=f"not tried: the scans' boxes are {gap:.3g} apart, farther than "
+                                               f"{method} from identity reaches ({reach:.3g})"))
+                continue
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # a low fitness is reported below, pair by pair
                 try:

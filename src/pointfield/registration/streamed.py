@@ -35,7 +35,7 @@ from pointfield.errors import PointfieldError
 from pointfield.registration.pairwise import aligned, check_transformation
 from pointfield.streaming.chunks import ChunkSource, StreamingFallback, WholeSource, open_source
 from pointfield.streaming.jobs import bytes_per_point, finite_bounds, indexed_chunks, scratch_folder, streaming_job
-from pointfield.streaming.memory import BASELINE_BYTES, parse_memory, plan, resident_bytes
+from pointfield.streaming.memory import BASELINE_BYTES, DEFAULT_MEMORY, parse_memory, plan, resident_bytes
 from pointfield.streaming.merging import common_layout, conform
 from pointfield.streaming.voxels import VoxelGrid, reduce_voxels
 from pointfield.streaming.writers import open_writer
@@ -142,19 +142,21 @@ def read_scans(paths: Sequence[str | os.PathLike[str]], voxel: float | None = No
 
 
 def write_moved(paths: Sequence[str | os.PathLike[str]], poses: Sequence[np.ndarray | None],
-                out: str | os.PathLike[str], memory: str | int | None = None, encoding: str | None = None) -> int:
+                out: str | os.PathLike[str], memory: str | int | None = None, encoding: str | None = None,
+                points: int | None = None) -> int:
     """Write each scan at ``paths`` moved by its pose (None: left out) into ``out``, chunk by chunk.
 
     ``poses`` ``(4, 4)`` each, as :func:`~pointfield.registration.aligned` applies them (normals
     turned, every other field kept). The format is ``out``'s suffix's; the file appears whole or
-    not at all. Returns the points written.
+    not at all. ``points`` per chunk (default: what ``memory`` allows). The result is the in-memory
+    one, ``aligned`` scan by scan and concatenated, whatever the chunks. Returns the points written.
     """
     if len(paths) != len(poses):
         raise PointfieldError(f"{len(paths)} scans but {len(poses)} poses")
     chosen = [(Path(p), check_transformation(t, f"pose of {p}")) for p, t in zip(paths, poses) if t is not None]
     if not chosen:
         raise PointfieldError("no scan to write: every one was left out")
-    with streaming_job([p for p, _ in chosen], memory=memory or "1G") as job:
+    with streaming_job([p for p, _ in chosen], memory=memory or DEFAULT_MEMORY, points=points) as job:
         points_dtype, fields, dropped = common_layout(job.templates)
         if dropped:
             warnings.warn(f"{out}: fields not in every scan are left out: {', '.join(dropped)}", stacklevel=2)
