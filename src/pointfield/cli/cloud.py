@@ -10,7 +10,7 @@ Each subcommand is a thin layer over a Python function:
 
 The streaming verbs (downsample, crop, tile, merge, ``info --stats``, and ``convert`` of a
 folder or with a scale option) are in :mod:`pointfield.cli.cloud_streaming`; ``register`` is in
-:mod:`pointfield.cli.cloud_registration`; ``planes``, ``clusters`` and ``ground`` in
+:mod:`pointfield.cli.cloud_registration`, ``align`` in :mod:`pointfield.cli.cloud_align`; ``planes``, ``clusters`` and ``ground`` in
 :mod:`pointfield.cli.cloud_segmentation`.
 """
 
