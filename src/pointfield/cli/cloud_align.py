@@ -16,7 +16,6 @@ import re
 import sys
 from pathlib import Path
 
-from pointfield.cli.cloud_registration import METHOD_HELP
 from pointfield.errors import PointfieldError
 from pointfield.streaming.memory import DEFAULT_MEMORY
 
@@ -39,8 +38,10 @@ def add_commands(commands: argparse._SubParsersAction) -> None:
                        help="where the poses go: per scan a 4x4 into the reference frame, per pair fitness and RMSE "
                        "(default: OUT with .poses.json)")
     align.add_argument("--method", default="auto", choices=("auto", "icp", "plane", "gicp", "colored", "global"),
-                       help="pairwise registration: " + METHOD_HELP + "; the fine methods start every pair from "
-                       "identity, for scans already roughly in one frame")
+                       help="pairwise registration: auto (default: global, then the fine step chosen by what the "
+                       "clouds carry), global (FPFH + RANSAC from any pose, then the fine step), or a fine method from "
+                       "identity, for scans already roughly in one frame: icp (point-to-point), plane (point-to-plane), "
+                       "gicp (generalized), colored (Park et al.; every scan needs colours)")
     align.add_argument("--voxel", type=float, metavar="S",
                        help="scale of the problem in the scans' units, for every pair (default: the first scan's "
                        "median point spacing)")
