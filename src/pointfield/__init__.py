@@ -7,6 +7,7 @@ The functions most people need first::
     for chunk in pointfield.read_chunks("city.laz", points=1_000_000): ...  # bigger than memory
     pointfield.write("scan.ply", cloud)          # fields preserved, written atomically
     result = pointfield.register(scan, other)    # rigid motion scan -> other, with fitness and RMSE
+    poses = pointfield.align([a, b, c]).poses    # many scans into one frame, loop closures included
     run = pointfield.load_run("runs/lego-ngp")   # any trained run: .render(cameras), .evaluate(), ...
     pointfield.classify.train(out="runs/shapes") # pointfield.classify / .segment: train, evaluate, predict
 """
@@ -21,7 +22,7 @@ from pointfield.version import __version__
 # The learning half needs torch, and registration scipy; they are imported on first use so that
 # reading a cloud stays quick. pointfield.classify and pointfield.segment are modules of their own
 # (``import pointfield.classify``).
-_LEARNING = {"load_run": "pointfield.runs", "register": "pointfield.registration"}
+_LEARNING = {"load_run": "pointfield.runs", "register": "pointfield.registration", "align": "pointfield.registration"}
 _MODULES = ("classify", "segment")
 
 
@@ -42,6 +43,7 @@ __all__ = [
     "PointfieldError",
     "Records",
     "__version__",
+    "align",
     "classify",
     "load_run",
     "read",

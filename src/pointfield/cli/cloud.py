@@ -10,7 +10,7 @@ Each subcommand is a thin layer over a Python function:
 
 The streaming verbs (downsample, crop, tile, merge, ``info --stats``, and ``convert`` of a
 folder or with a scale option) are in :mod:`pointfield.cli.cloud_streaming`; ``register`` is in
-:mod:`pointfield.cli.cloud_registration`; ``planes``, ``clusters`` and ``ground`` in
+:mod:`pointfield.cli.cloud_registration`, ``align`` in :mod:`pointfield.cli.cloud_align`; ``planes``, ``clusters`` and ``ground`` in
 :mod:`pointfield.cli.cloud_segmentation`.
 """
 
@@ -22,7 +22,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from pointfield.cli import cloud_registration, cloud_segmentation, cloud_streaming, cloud_volumes
+from pointfield.cli import cloud_align, cloud_registration, cloud_segmentation, cloud_streaming, cloud_volumes
 from pointfield.errors import PointfieldError
 from pointfield.volumes.files import is_voxel_file
 
@@ -130,6 +130,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
     cloud_streaming.add_commands(commands)
     cloud_registration.add_commands(commands)
+    cloud_align.add_commands(commands)
     cloud_segmentation.add_commands(commands)
     cloud_volumes.add_commands(commands)
 

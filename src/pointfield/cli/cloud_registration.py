@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from pointfield.errors import PointfieldError
+from pointfield.streaming.memory import DEFAULT_MEMORY
 
 METHOD_HELP = ("auto (default: global when no --init, then coloured, point-to-plane or generalized ICP by what the "
                "clouds carry), icp (point-to-point), plane (point-to-plane), gicp (generalized), colored (Park et al.; "
@@ -41,6 +42,10 @@ def add_commands(commands: argparse._SubParsersAction) -> None:
                           help="inlier distance of the fine step, fitness and RMSE (default: the voxel)")
     register.add_argument("--kernel", choices=("huber", "tukey"), help="robust kernel against outliers (default none)")
     register.add_argument("--seed", type=int, default=0, help="seed of RANSAC (default 0)")
+    register.add_argument("--memory", metavar="SIZE", default=DEFAULT_MEMORY,
+                          help=f"memory registration may take, e.g. 2G (default {DEFAULT_MEMORY}); a pair that does not "
+                          "fit is thinned to the voxel while reading, and refused naming the voxel that fits if still "
+                          "too big")
     register.add_argument("--out", type=Path, metavar="ALIGNED",
                           help="write SOURCE moved onto TARGET, in the format its suffix names, every field kept")
     register.add_argument("--json", action="store_true",
@@ -66,14 +71,19 @@ def read_init(path: Path) -> object:
 def run_register(args: argparse.Namespace) -> int:
     import pointfield
     from pointfield.registration import aligned, check_cloud, check_transformation, register
+    from pointfield.registration.streamed import read_scans, write_moved
 
-    source, target = pointfield.read(args.source), pointfield.read(args.target)
+    (source, target), thinned = read_scans([args.source, args.target], args.voxel, args.memory,
+                                            scratch=None if args.out is None else args.out.resolve().parent)
     check_cloud(source, str(args.source))
     check_cloud(target, str(args.target))
     init = None if args.init is None else check_transformation(read_init(args.init), str(args.init))
     result = register(source, target, method=args.method, init=init, voxel=args.voxel,
                       max_distance=args.max_distance, kernel=args.kernel, seed=args.seed)
-    if args.out is not None:
+    result.notes[:0] = thinned
+    if args.out is not None and thinned:  # SOURCE did not fit whole: moved a chunk at a time from its file
+        write_moved([args.source], [result.transformation], args.out, memory=args.memory)
+    elif args.out is not None:
         pointfield.write(args.out, aligned(source, result.transformation))
     if args.json:
         print(json.dumps(result.as_dict(), indent=2))
@@ -84,5 +94,5 @@ def run_register(args: argparse.Namespace) -> int:
         for note in result.notes:
             print(f"  {note}", file=sys.stderr)
         if args.out is not None:
-            print(f"wrote {args.out}: {len(source):,} points moved onto {args.target}")
+            print(f"wrote {args.out}: {f'every point of {args.source}' if thinned else f'{len(source):,} points'} moved onto {args.target}")
     return 0

@@ -13,6 +13,9 @@ One file per piece, as open3d's ``pipelines.registration`` names them:
 ``global_registration.py``     feature matching and RANSAC with correspondence checkers
 ``result.py``                  :class:`RegistrationResult`, fitness, RMSE, information matrix
 ``scan.py``                    :class:`Scan`, the arrays the above work on
+``pose_graph.py``              :func:`optimize_pose_graph`: poses consistent over every edge, loop closures pruned
+``multiway.py``                :func:`align`, many scans into one frame (open3d's multiway registration)
+``streamed.py``                scans read whole or thinned while streaming within ``--memory``; written moved
 =============================  ============================================================
 """
 
@@ -32,6 +35,7 @@ from pointfield.registration.icp import (
     registration_small_gicp,
 )
 from pointfield.registration.kernels import HuberLoss, L2Loss, TukeyLoss
+from pointfield.registration.multiway import AlignedPair, AlignResult, align
 from pointfield.registration.pairwise import (
     METHODS,
     aligned,
@@ -41,11 +45,12 @@ from pointfield.registration.pairwise import (
     feature_alignment,
     register,
 )
+from pointfield.registration.pose_graph import PoseGraph, PoseGraphEdge, optimize_pose_graph
 from pointfield.registration.result import RegistrationResult, evaluate, information_matrix
 from pointfield.registration.scan import Scan
 
 __all__ = [
-    "METHODS", "ColoredICP", "DistanceChecker", "EdgeLengthChecker", "GeneralizedICP", "HuberLoss",
+    "METHODS", "AlignResult", "AlignedPair", "PoseGraph", "PoseGraphEdge", "align", "optimize_pose_graph", "ColoredICP", "DistanceChecker", "EdgeLengthChecker", "GeneralizedICP", "HuberLoss",
     "ICPConvergenceCriteria", "L2Loss", "PointToPlane", "PointToPoint", "RANSACCriteria", "RegistrationResult",
     "Scan", "TukeyLoss", "aligned", "check_cloud", "check_transformation", "compute_fpfh", "default_voxel",
     "evaluate", "feature_alignment", "information_matrix", "kabsch", "match_features", "multiscale_icp",
