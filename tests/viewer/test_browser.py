@@ -90,11 +90,13 @@ def test_an_ngp_run_is_rendered_on_the_server_and_follows_the_camera(served, pag
     page = page_of(viewer)
     client = connected(viewer)
     renderer = run.renderer
-    wait_for(lambda: any(not f.moving for f in renderer.frames()) or None, 60, "a full-size frame")
+    # A full-size frame is up to 1024 px wide, rendered eagerly on the CPU: 51 s alone on a busy 2-core
+    # machine, past a minute beside the rest of the suite. The wait is for the frame, not a speed claim.
+    wait_for(lambda: any(not f.moving for f in renderer.frames()) or None, 300, "a full-size frame")
     assert shows_object(page)
     before = len(renderer.frames())
     client.camera.position = tuple(np.asarray(client.camera.position) * 1.3)  # the test moves the camera
-    wait_for(lambda: len(renderer.frames()) > before or None, 60, "a frame of the moved camera")
+    wait_for(lambda: len(renderer.frames()) > before or None, 300, "a frame of the moved camera")
     assert renderer.frames()[before].moving  # small first, while it may still be moving
 
 
