@@ -78,6 +78,22 @@ def test_nerf_export_writes_a_decimated_density_mesh(ngp_cube_run, tmp_path, cap
     assert 0 < len(read(out).faces) <= 1000
 
 
+def test_frames_chooses_how_many_training_views_judge_what_was_seen(ngp_cube_run, monkeypatch):
+    """``--frames N`` renders N training views, spread over the whole set, for the visibility test."""
+    from pointfield.geometry import density
+    from pointfield.scenes.heldout import training_and_heldout
+
+    run = pointfield.load_run(ngp_cube_run, "cpu")
+    seen = []
+    monkeypatch.setattr(density, "fill_unseen", lambda grid, threshold, low, voxel, cameras, *rest, **options:
+                        seen.append(cameras))
+    mesh = mesh_from_density(run, resolution=32, frames=4)
+    training, _ = training_and_heldout(run.scene)
+    spread = run.scene.cameras[training[[0, round((len(training) - 1) / 3), round(2 * (len(training) - 1) / 3), -1]]]
+    assert len(seen[0]) == 4 and len(mesh.faces) > 0
+    torch.testing.assert_close(seen[0].camera_to_world, spread.camera_to_world.to(seen[0].camera_to_world))
+
+
 def test_a_tinynerf_run_is_meshed_over_its_scenes_box(tmp_path):
     # Untrained, its density is about softplus(0) = 0.69 everywhere: above 0.1 the whole box is
     # matter, and the zero density padded around the box closes it.

@@ -27,7 +27,8 @@ def add_cloud_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--faces", type=int, help="mesh: decimate to at most this many triangles")
     parser.add_argument("--path", choices=("dataset", "orbit", "spiral"), default="dataset",
                         help="cameras to render from (default: the run's training views)")
-    parser.add_argument("--frames", type=int, help="cameras of the path (default: every training view; orbit 60)")
+    parser.add_argument("--frames", type=int, help="cameras of the path, evenly spaced (default: every training view; orbit 60); "
+                        "mesh, density: the training views that judge what was seen (default all)")
     parser.add_argument("--points", type=int, help="thin the cloud to this many points (farthest point sampling)")
     parser.add_argument("--min-opacity", type=float, default=0.5,
                         help="pixels less opaque than this give no point (default 0.5)")

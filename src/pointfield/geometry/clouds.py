@@ -187,7 +187,8 @@ def rendered_depth_maps(scene_run, cameras, min_opacity: float = 0.5, progress: 
 
 def cameras_of(scene_run, path: str, frames: int | None):
     """The cameras to render geometry from, on the run's device: the run's training views
-    ("dataset", the first ``frames`` of them if given) or ``frames`` cameras of an orbit / spiral."""
+    ("dataset"; ``frames`` of them, evenly spaced through the list, if given) or ``frames`` cameras
+    of an orbit / spiral. Spaced, not the first ones: a capture's first views often share one side."""
     from pointfield.scenes.heldout import training_and_heldout
     from pointfield.scenes.paths import PATHS, path_cameras
 
@@ -196,7 +197,9 @@ def cameras_of(scene_run, path: str, frames: int | None):
     scene = scene_run.scene
     if path == "dataset":
         training, _ = training_and_heldout(scene)
-        cameras = scene.cameras[training[:frames] if frames else training]
+        if frames and frames < len(training):
+            training = training[np.linspace(0, len(training) - 1, frames).round().astype(int)]
+        cameras = scene.cameras[training]
     else:
         cameras = path_cameras(scene, path, frames)
     return cameras.to(scene_run.device)

@@ -143,9 +143,10 @@ def _occupied_density(model: InstantNGP) -> Density:
     return density
 
 
-def training_cameras(scene_run: Any) -> Cameras:
-    """The run's training cameras on its device, downscaled to at most ``VISIBILITY_PIXELS`` across."""
-    cameras = cameras_of(scene_run, "dataset", None)
+def training_cameras(scene_run: Any, frames: int | None = None) -> Cameras:
+    """The run's training cameras (``frames`` of them, evenly spaced, if given) on its device,
+    downscaled to at most ``VISIBILITY_PIXELS`` across."""
+    cameras = cameras_of(scene_run, "dataset", frames)
     longest = int(torch.maximum(cameras.width, cameras.height).max())
     return cameras.scaled(max(1, math.ceil(longest / VISIBILITY_PIXELS)))
 
@@ -198,6 +199,7 @@ def mesh_from_density(
     resolution: int = 256,
     threshold: float | None = None,
     *,
+    frames: int | None = None,
     chunk: int = DENSITY_CHUNK,
     memory_limit: int | None = None,
     progress: bool = False,
@@ -207,7 +209,9 @@ def mesh_from_density(
     ``low``, ``high``: the box's ``(3,)`` corners (default: the field's own box,
     :func:`density_field`); ``resolution`` voxels along its longest side; ``threshold``
     (inverse world units) defaults to :func:`default_threshold` of the field's box. Vertices are
-    float64 world points with uint8 ``colors``; faces face out. Floating pieces are kept (the
+    float64 world points with uint8 ``colors``; faces face out. ``frames``: how many training
+    views (evenly spaced; default all) judge what was seen (:func:`fill_unseen`): each is one
+    coarse render, so fewer are faster, and a hollow no kept view looks into is filled. Floating pieces are kept (the
     exporter drops them). Raises :class:`PointfieldError` for a run without a bounded density
     field, a grid larger than ``memory_limit`` bytes and a density that never crosses the level.
     ``chunk``: points per density query.
@@ -235,7 +239,7 @@ def mesh_from_density(
             f"{scene_run.path}: the density never reaches the threshold {threshold:.4g} inside the box "
             f"(its largest value is {grid.max():.4g}); nothing to mesh (lower --threshold)"
         )
-    cameras = training_cameras(scene_run)
+    cameras = training_cameras(scene_run, frames)
     depth_maps = [depth for depth, _ in rendered_depth_maps(scene_run, cameras, progress=progress, depth="median")]
     fill_unseen(grid, threshold, low, voxel, cameras, depth_maps, progress=progress)
     # Density rises inwards; "ascent" winds the faces (right-hand rule) and points the normals outwards.

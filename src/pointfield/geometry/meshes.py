@@ -137,8 +137,8 @@ def export_mesh(
 
     ``method``: "tsdf" (default) fuses rendered depth; "density" meshes a bounded field run's
     density at ``threshold`` (default :func:`~pointfield.geometry.density.default_threshold`),
-    and ignores the rendering options (``path``, ``frames``, ``min_opacity``, ``depth``,
-    ``truncation_voxels``). ``depth``: "expected" or "median", as for
+    and ignores the rendering options but ``frames``, the training views that judge what was
+    seen (:func:`~pointfield.geometry.density.mesh_from_density`). ``depth``: "expected" or "median", as for
     :func:`~pointfield.geometry.export_cloud`. Raises :class:`PointfieldError` for a run that is not a scene run
     (or, for "density", not a bounded field run), a grid too large for ``memory_limit`` bytes
     (default: half the machine's memory; the message says how much it would need and what
@@ -156,7 +156,7 @@ def export_mesh(
     scene_run = open_scene_run(run, device)
     if method == "density":
         return _export_density_mesh(
-            scene_run, out, resolution=resolution, threshold=threshold, crop=crop, faces=faces,
+            scene_run, out, resolution=resolution, threshold=threshold, crop=crop, faces=faces, frames=frames,
             min_component=min_component,
             memory_limit=memory_limit if memory_limit is not None else _default_memory_limit(), progress=progress,
         )
@@ -189,8 +189,8 @@ def export_mesh(
     }
 
 
-def _export_density_mesh(scene_run, out: Path, *, resolution, threshold, crop, faces, min_component, memory_limit,
-                         progress) -> dict[str, Any]:
+def _export_density_mesh(scene_run, out: Path, *, resolution, threshold, crop, faces, frames, min_component,
+                         memory_limit, progress) -> dict[str, Any]:
     """``export_mesh`` with ``method="density"``: the density mesh, floaters dropped, decimated, written."""
     _, field_box = density_field(scene_run)
     if crop is not None:
@@ -200,7 +200,7 @@ def _export_density_mesh(scene_run, out: Path, *, resolution, threshold, crop, f
         (low, high), box_source = field_box, "field's box"
     threshold = default_threshold(field_box) if threshold is None else threshold
     shape, voxel = grid_shape(low, high, resolution)
-    mesh = mesh_from_density(scene_run, low, high, resolution, threshold, memory_limit=memory_limit,
+    mesh = mesh_from_density(scene_run, low, high, resolution, threshold, frames=frames, memory_limit=memory_limit,
                              progress=progress)
     mesh = drop_small_components(mesh, min_component)
     meshed_faces = len(mesh.faces)
