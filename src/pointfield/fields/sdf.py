@@ -132,8 +132,9 @@ class NeuralSDF(RadianceField):
     contracted space has no closed zero level set to export). ``steps_across_box``,
     ``grid_resolution``, ``target_samples``, the hash-grid options and ``backend`` as for
     :class:`~pointfield.fields.ngp.InstantNGP`; ``target_samples`` defaults to 2^13, a quarter
-    of ngp's sample budget over a CPU's step: a sample here costs about four of ngp's (the
-    eager hash grid, the gradient and its own backward), and on the cube at 64 px 2^13 gave
+    of ngp's sample budget over a CPU's step: a sample here costs about seven of ngp's (the
+    eager hash grid, the gradient and its own backward; benchmarks/records/sdf_field.json), and
+    on the cube at 64 px 2^13 gave
     128 steps and 21.1 dB in 60 s where 2^15 gave 34 steps and 19.6 dB (CUDA runs take
     :data:`~pointfield.fields.ngp.CUDA_OPTIONS`' 2^18). ``sphere_radius``: the untrained surface's
     radius as a fraction of the box's half-side; ``initial_variance``: ``v`` of ``s = exp(10 v)``;

@@ -16,7 +16,8 @@
    (:func:`~pointfield.volumes.voxels.mesh_openness`: watertight when every edge is shared by
    exactly two faces).
 5. Colour each vertex with what a camera looking at it along its inward normal sees
-   (:func:`~pointfield.geometry.density.surface_colours`, as density meshes are coloured).
+   (:func:`~pointfield.geometry.density.surface_colours`, as density meshes are coloured), the
+   normal being the field's own gradient there (:func:`outward_normals`).
 
 No rendered depth is fused and no density threshold chosen: the surface is where the field says
 it is, and it has no holes where views disagree.
@@ -71,6 +72,19 @@ def sample_sdf(model: NeuralSDF, low: Sequence[float], voxel: float, shape: tupl
         distances = torch.cat([model.sdf_at(part) for part in points.split(chunk)])
         values[i + 1, 1:-1, 1:-1] = distances.reshape(size_y, size_z).float().cpu().numpy()
     return SDFGrid(values, np.asarray(low, np.float64) - voxel, voxel)
+
+
+def outward_normals(model: NeuralSDF, points: np.ndarray, chunk: int = DENSITY_CHUNK) -> np.ndarray:
+    """``(V, 3)`` float64: the field's own outward normals ``grad f / |grad f|`` at world ``points`` ``(V, 3)``.
+
+    The colour ray must enter the surface: NeuS's alpha makes a ray that leaves it see nothing.
+    """
+    device = model.box.device
+    normals = []
+    for part in torch.as_tensor(points, dtype=torch.float32).split(chunk):
+        _, gradient, _ = model.sdf_and_gradient(model.to_box_units(part.to(device)), create_graph=False)
+        normals.append(torch.nn.functional.normalize(gradient, dim=-1).cpu())
+    return torch.cat(normals).double().numpy() if normals else np.zeros((0, 3))
 
 
 def largest_component(mesh: Mesh) -> tuple[Mesh, int]:
@@ -128,9 +142,9 @@ def mesh_from_sdf(
                               f"least value is {grid.values.min():.4g}); there is no surface to mesh")
     mesh = grid.to_mesh(0.0)
     mesh, pieces = largest_component(mesh)
-    normals = mesh.fields.pop("normals")
-    mesh.fields["colors"] = surface_colours(model, mesh.points, normals.astype(np.float64), COLOUR_RAY_VOXELS * voxel,
-                                            model.box.device)
+    del mesh.fields["normals"]
+    mesh.fields["colors"] = surface_colours(model, mesh.points, outward_normals(model, mesh.points),
+                                            COLOUR_RAY_VOXELS * voxel, model.box.device)
     openness = mesh_openness(mesh)
     report = {"grid": list(shape), "voxel": voxel, "pieces": pieces, "openness": openness,
               "watertight": openness["boundary"] == 0 and openness["nonmanifold"] == 0}
