@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test test-guides lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near clean
+.PHONY: demo test test-guides lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -57,7 +57,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near
+bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -147,6 +147,12 @@ bench-lego: $(BIN)/.installed
 SDF_SIZE ?= 32
 bench-sdf: $(BIN)/.open3d
 	$(BIN)/python benchmarks/bench_sdf.py --size $(SDF_SIZE)
+
+# The neural SDF field (--model sdf) against ngp, same run and budget: PSNR, mesh Chamfer, watertightness (issue 46);
+# lego at 100 x 100: make bench-sdf-field SDF_FIELD_ARGS="--scene lego"
+SDF_FIELD_ARGS ?=
+bench-sdf-field: $(BIN)/.open3d
+	$(BIN)/python benchmarks/bench_sdf_field.py $(SDF_FIELD_ARGS)
 
 # Armadillo's points with normals to a watertight mesh against open3d's screened Poisson at depth 8 (issue 46)
 bench-poisson: $(BIN)/.open3d

@@ -122,7 +122,7 @@ def test_a_density_grid_too_large_says_what_fits(ngp_cube_run):
 
 
 def test_an_unknown_mesh_method_or_a_threshold_without_density_is_refused(ngp_cube_run, tmp_path):
-    with pytest.raises(PointfieldError, match="mesh method must be one of tsdf, density, got 'poisson'"):
+    with pytest.raises(PointfieldError, match="mesh method must be one of tsdf, density, sdf, got 'poisson'"):
         export_mesh(ngp_cube_run, tmp_path / "cube.ply", method="poisson")
     with pytest.raises(PointfieldError, match="threshold is for --method density"):
         export_mesh(ngp_cube_run, tmp_path / "cube.ply", threshold=5.0)

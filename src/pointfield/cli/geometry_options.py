@@ -16,9 +16,10 @@ def add_cloud_options(parser: argparse.ArgumentParser) -> None:
                         help="write a point cloud of rendered depth (any format pointfield writes: .ply, .pcd, .las, ...)")
     parser.add_argument("--mesh", type=Path, metavar="OUT",
                         help="write a mesh: rendered depth fused into a TSDF, marching cubes (.ply, .off, .obj, .glb)")
-    parser.add_argument("--method", choices=("tsdf", "density"), default="tsdf",
-                        help="mesh: tsdf (default: fuse rendered depth; any run) or density (marching cubes on "
-                        "the field's density; field runs of a bounded scene, such as ngp on an object)")
+    parser.add_argument("--method", choices=("tsdf", "density", "sdf"), default=None,
+                        help="mesh: tsdf (the default, except for sdf runs: fuse rendered depth; any run), density "
+                        "(marching cubes on the field's density; field runs of a bounded scene, such as ngp on an "
+                        "object) or sdf (the default for nerf train --model sdf runs: the zero level set, closed)")
     parser.add_argument("--threshold", type=float,
                         help="mesh, density: the density level of the surface (default: 2.5 / the field box's "
                         "longest side, instant-ngp's level)")
@@ -66,7 +67,7 @@ def export_geometry_of(args: argparse.Namespace) -> None:
     from pointfield.geometry.clouds import cameras_of, open_scene_run, render_views
 
     run, views = args.run_dir, None
-    if args.mesh is not None and args.cloud is not None and args.method == "tsdf":
+    if args.mesh is not None and args.cloud is not None and args.method in (None, "tsdf"):
         # Both start from the same renders of the same cameras, most of an export's time: render once.
         run = open_scene_run(args.run_dir, args.device)
         views = render_views(run, cameras_of(run, args.path, args.frames), args.progress, depth=args.depth)
@@ -78,8 +79,15 @@ def export_geometry_of(args: argparse.Namespace) -> None:
             device=args.device, progress=args.progress, views=views,
         )
         grid = "x".join(map(str, result["grid"]))
-        how = (f"density {grid} at {result['threshold']:.3g} over the {result['box_source']}"
-               if args.method == "density" else f"TSDF {grid} over the {result['box_source']}, {result['views']} views")
+        if "watertight" in result:  # the zero level set of an sdf run
+            from pointfield.volumes.voxels import openness_text
+
+            how = (f"SDF zero level on {grid} nodes over the {result['box_source']}, largest of {result['pieces']} "
+                   f"pieces, {openness_text(result['openness'])}")
+        elif args.method == "density":
+            how = f"density {grid} at {result['threshold']:.3g} over the {result['box_source']}"
+        else:
+            how = f"TSDF {grid} over the {result['box_source']}, {result['views']} views"
         print(f"wrote {result['faces']:,} faces, {result['vertices']:,} vertices ({how}) to {result['out']}")
     if args.cloud is None:
         return

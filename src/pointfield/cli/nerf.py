@@ -40,11 +40,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train = verbs.add_parser("train", help="train a radiance field (default: the hash-grid field, ngp) into a run folder")
     train.add_argument("scene", nargs="?", type=Path, metavar="SCENE",
                        help="posed-image dataset (default: the built-in synthetic cube)")
-    train.add_argument("--model", choices=("tiny", "nerf", "ngp"), default="ngp",
+    train.add_argument("--model", choices=("tiny", "nerf", "ngp", "sdf"), default="ngp",
                        help="ngp (hash grid, occupancy grid / proposal sampler: the fast one; default), "
-                       "tiny (the lesson's TinyNeRF, 4x128, 64 samples) or nerf (8x256 coarse + fine)")
+                       "tiny (the lesson's TinyNeRF, 4x128, 64 samples), nerf (8x256 coarse + fine) or sdf "
+                       "(a hash-grid signed distance field rendered as NeuS: export --mesh gives its closed "
+                       "zero level set)")
     train.add_argument("--out", type=Path, default=Path("runs/nerf"), help="run folder (default runs/nerf)")
-    train.add_argument("--steps", type=int, help="optimizer steps (default: tiny 2000, nerf 5000, ngp 3000)")
+    train.add_argument("--steps", type=int, help="optimizer steps (default: tiny 2000, nerf 5000, ngp and sdf 3000)")
     add_max_time_option(train)
     train.add_argument("--batch-rays", type=int, default=1024, help="rays per step (default 1024)")
     add_scene_training_options(train)
@@ -61,9 +63,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--eval-every", type=int, metavar="STEPS",
                        help="evaluate on held-out views every STEPS steps (default: every epoch, at most 500)")
     train.add_argument("--lr", dest="learning_rate", type=float,
-                       help="Adam learning rate, decayed to a tenth over the run (default: 5e-4, ngp 1e-2)")
+                       help="Adam learning rate, decayed to a tenth over the run (default: 5e-4, ngp and sdf 1e-2)")
     train.add_argument("--scene-box", default="auto", metavar="BOX",
-                       help="ngp only: auto (default: objects on transparent backgrounds are bounded, "
+                       help="ngp and sdf only: auto (default: objects on transparent backgrounds are bounded, "
                        "real photos unbounded), bounded, unbounded, or 'x0,y0,z0,x1,y1,z1' (a bounded box)")
     train.add_argument("--device", help=DEVICE_HELP)
     train.add_argument("--seed", type=int, default=0, help="random seed (default 0)")

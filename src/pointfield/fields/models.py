@@ -1,4 +1,4 @@
-"""The NeRF models by ``--model`` name: ``tiny``, ``nerf`` and ``ngp``."""
+"""The NeRF models by ``--model`` name: ``tiny``, ``nerf``, ``ngp`` and ``sdf`` (the neural SDF)."""
 
 from __future__ import annotations
 
@@ -7,13 +7,14 @@ from typing import Any
 from pointfield.fields.field import RadianceField
 from pointfield.fields.nerf import NeRF, TinyNeRF
 from pointfield.fields.ngp import InstantNGP
+from pointfield.fields.sdf import NeuralSDF
 
-MODELS: dict[str, type[RadianceField]] = {"tiny": TinyNeRF, "nerf": NeRF, "ngp": InstantNGP}
+MODELS: dict[str, type[RadianceField]] = {"tiny": TinyNeRF, "nerf": NeRF, "ngp": InstantNGP, "sdf": NeuralSDF}
 """``--model`` name -> class."""
 
 
 def build_model(name: str, **options: Any) -> RadianceField:
-    """The model called ``name`` ("tiny", "nerf" or "ngp"), with constructor ``options``.
+    """The model called ``name`` ("tiny", "nerf", "ngp" or "sdf"), with constructor ``options``.
 
     Example::
 

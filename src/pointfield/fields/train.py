@@ -90,9 +90,11 @@ from pointfield.viz.views import save_panels
 
 CURVES_PNG = "training_curves.png"
 HELDOUT_DIR = "heldout"
-DEFAULT_STEPS = {"tiny": 2000, "nerf": 5000, "ngp": 3000}
-LEARNING_RATES = {"tiny": 5e-4, "nerf": 5e-4, "ngp": 1e-2}
-"""Adam's default learning rate per model (the hash grid's, as in Instant-NGP, is much larger)."""
+DEFAULT_STEPS = {"tiny": 2000, "nerf": 5000, "ngp": 3000, "sdf": 3000}
+LEARNING_RATES = {"tiny": 5e-4, "nerf": 5e-4, "ngp": 1e-2, "sdf": 1e-2}
+"""Adam's default learning rate per model (the hash grids', as in Instant-NGP and instant-NSR, are much larger)."""
+HASH_GRID_MODELS = ("ngp", "sdf")
+"""The models on a hash grid in a box: their options come from the scene and device (:func:`default_ngp_options`)."""
 FINAL_LEARNING_RATE_FRACTION = 0.1
 BOUNDED_NGP_DISTORTION = 0.01
 """The distortion loss's default weight for the fast field on a bounded scene (an object on a
@@ -190,8 +192,11 @@ class NerfTask(Task):
         choose_scene_defaults(config, device, say=distributed is None or distributed.is_main)
         self.scene = open_scene_of(config)
         self.train_frames, self.heldout_frames = training_and_heldout(self.scene)
-        if config["model"] == "ngp" and "box" not in config["model_options"]:  # a new run: a resume has its box
-            chosen = default_ngp_options(self.scene, config.get("scene_box", "auto"), device)
+        if config["model"] in HASH_GRID_MODELS and "box" not in config["model_options"]:  # a resume has its box
+            scene_box = config.get("scene_box", "auto")
+            if config["model"] == "sdf" and scene_box == "auto":
+                scene_box = "bounded"  # a signed distance has no contracted form: the object's box
+            chosen = default_ngp_options(self.scene, scene_box, device)
             config["model_options"] = {**chosen, **config["model_options"]}
         if "distortion" in config and config["distortion"] is None:
             bounded = config["model"] == "ngp" and not config["model_options"].get("unbounded", False)
@@ -219,7 +224,7 @@ class NerfTask(Task):
         self.steps_per_epoch = math.ceil(len(self.rays) / config["batch_rays"])
         self.round_steps = config["eval_every"] or min(self.steps_per_epoch, 500)
         self.epochs = math.ceil(config["steps"] / self.round_steps)
-        if config["model"] == "ngp":
+        if config["model"] in HASH_GRID_MODELS:
             # Instant-NGP's Adam: beta2 0.99 and a tiny epsilon, so rarely-touched hash entries
             # still move at the full learning rate.
             # fused: one kernel over the whole table instead of a dozen passes (6x faster on a CPU).
@@ -352,8 +357,9 @@ def train(
     """Train a NeRF model on ``scene`` into run folder ``out``; returns the final metrics.
 
     ``model`` is "ngp" (the hash-grid field, the default: the fast one), "tiny" (the lesson's
-    TinyNeRF) or "nerf" (the original coarse + fine NeRF).
-    ``steps`` defaults to 2000 (tiny), 5000 (nerf) or 3000 (ngp); ``max_time``: the call returns
+    TinyNeRF), "nerf" (the original coarse + fine NeRF) or "sdf" (the hash-grid signed distance
+    field rendered as NeuS does, :mod:`pointfield.fields.sdf`; always in the object's bounded box).
+    ``steps`` defaults to 2000 (tiny), 5000 (nerf) or 3000 (ngp, sdf); ``max_time``: the call returns
     within that many seconds of wall clock, start-up and the final evaluation included (which
     scores as many held-out views as fit, ``views`` of ``heldout_views``); ``max_training_time``
     stops after that many seconds of training instead (evaluation excluded, summed over resumed

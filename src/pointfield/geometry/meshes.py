@@ -19,7 +19,9 @@
 
 ``method="density"`` replaces steps 1 to 3 for a bounded field run: marching cubes on the field's
 density itself, the training views rendered coarsely only to fill what they do not see
-(:mod:`pointfield.geometry.density`).
+(:mod:`pointfield.geometry.density`). ``method="sdf"``, the default for a run of the neural SDF
+(``--model sdf``), replaces them all: the zero level set of its signed distance, the largest
+piece, closed (:mod:`pointfield.geometry.sdf_mesh`).
 """
 
 from __future__ import annotations
@@ -40,11 +42,13 @@ from pointfield.geometry.density import (
     density_field,
     mesh_from_density,
 )
+from pointfield.geometry.sdf_mesh import mesh_from_sdf
 from pointfield.geometry.tsdf import TSDFVolume, fuse, grid_shape
 
 MESH_SUFFIXES = (".ply", ".off", ".obj", ".glb", ".stl")
-MESH_METHODS = ("tsdf", "density")
-"""``--method``: fuse rendered depth (any scene run), or marching cubes on a bounded field's density."""
+MESH_METHODS = ("tsdf", "density", "sdf")
+"""``--method``: fuse rendered depth (any scene run), marching cubes on a bounded field's density, or
+the zero level set of a neural SDF run. None picks "sdf" for an sdf run and "tsdf" for any other."""
 DEFAULT_MEMORY_FRACTION = 0.5
 """A TSDF grid may take at most this fraction of the machine's memory (the rest is for everything else)."""
 
@@ -115,7 +119,7 @@ def export_mesh(
     out: str | os.PathLike[str],
     *,
     resolution: int = 256,
-    method: str = "tsdf",
+    method: str | None = None,
     threshold: float | None = None,
     path: str = "dataset",
     frames: int | None = None,
@@ -135,7 +139,10 @@ def export_mesh(
     ``views``: :func:`~pointfield.geometry.clouds.render_views` of the cameras of ``path`` and
     ``frames``, when the caller has them already (as for :func:`~pointfield.geometry.export_cloud`).
 
-    ``method``: "tsdf" (default) fuses rendered depth; "density" meshes a bounded field run's
+    ``method``: "sdf" (the default for an sdf run; ``report`` in the summary says how closed the
+    mesh is) meshes its zero level set (:mod:`~pointfield.geometry.sdf_mesh`) and ignores the
+    rendering options as "density" does; "tsdf" (the default for any other run) fuses rendered
+    depth; "density" meshes a bounded field run's
     density at ``threshold`` (default :func:`~pointfield.geometry.density.default_threshold`),
     and ignores the rendering options but ``frames``, the training views that judge what was
     seen (:func:`~pointfield.geometry.density.mesh_from_density`). ``depth``: "expected" or "median", as for
@@ -149,11 +156,16 @@ def export_mesh(
     out = Path(out)
     if out.suffix.lower() not in MESH_SUFFIXES:
         raise PointfieldError(f"{out}: a mesh is written as {', '.join(MESH_SUFFIXES)}")
-    if method not in MESH_METHODS:
+    if method is not None and method not in MESH_METHODS:
         raise PointfieldError(f"the mesh method must be one of {', '.join(MESH_METHODS)}, got {method!r}")
-    if method != "density" and threshold is not None:
-        raise PointfieldError("a density threshold is for --method density; TSDF meshes have none")
     scene_run = open_scene_run(run, device)
+    if method is None:
+        method = "sdf" if getattr(scene_run, "config", {}).get("model") == "sdf" else "tsdf"
+    if method != "density" and threshold is not None:
+        raise PointfieldError(f"a density threshold is for --method density; {method.upper()} meshes have none")
+    if method == "sdf":
+        return _export_sdf_mesh(scene_run, out, resolution=resolution, crop=crop, faces=faces,
+                                memory_limit=memory_limit if memory_limit is not None else _default_memory_limit())
     if method == "density":
         return _export_density_mesh(
             scene_run, out, resolution=resolution, threshold=threshold, crop=crop, faces=faces, frames=frames,
@@ -211,6 +223,22 @@ def _export_density_mesh(scene_run, out: Path, *, resolution, threshold, crop, f
         "out": str(out), "vertices": len(mesh.points), "faces": len(mesh.faces), "meshed_faces": meshed_faces,
         "threshold": float(threshold), "grid": list(shape), "voxel": voxel, "box": [list(low), list(high)],
         "box_source": box_source,
+    }
+
+
+def _export_sdf_mesh(scene_run, out: Path, *, resolution, crop, faces, memory_limit) -> dict[str, Any]:
+    """``export_mesh`` with ``method="sdf"``: the zero level set, its largest piece, decimated, written."""
+    low, high, box_source = (None, None, "field's box") if crop is None else (crop[:3], crop[3:], "crop")
+    mesh, report = mesh_from_sdf(scene_run, low, high, resolution, memory_limit=memory_limit)
+    meshed_faces = len(mesh.faces)
+    if faces is not None:
+        mesh = decimate(mesh, faces)
+    write_mesh(out, mesh)
+    box = scene_run.module.box.tolist() if crop is None else [list(crop[:3]), list(crop[3:])]
+    return {
+        "out": str(out), "vertices": len(mesh.points), "faces": len(mesh.faces), "meshed_faces": meshed_faces,
+        "grid": report["grid"], "voxel": report["voxel"], "box": box, "box_source": box_source,
+        "pieces": report["pieces"], "openness": report["openness"], "watertight": report["watertight"],
     }
 
 

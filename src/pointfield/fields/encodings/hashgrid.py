@@ -94,6 +94,11 @@ class HashEncoding(nn.Module):
     scatters with atomic adds, which win on cache-sized tables and lose on the paper's 2^19
     entries (benchmarks/bench_hashgrid.py measures both). "auto" (default) compiles where a
     compiler is available and falls back to eager, with a warning, if compilation fails.
+
+    Positions that need a gradient (the SDF field's normals, whose eikonal term is
+    differentiated again) take plain autograd through :func:`hash_encode`, eagerly, whatever the
+    backend: the hand-written backward gives positions none, and compiled graphs have no double
+    backward.
     """
 
     def __init__(
@@ -135,6 +140,11 @@ class HashEncoding(nn.Module):
         shape = positions.shape[:-1]
         flat = positions.reshape(-1, 3).to(self.table.dtype)
         arguments = (flat, self.table, self._resolution.to(self.table.dtype), self._primes, self._mask, self._offset)
+        if torch.is_grad_enabled() and flat.requires_grad:
+            # A gradient with respect to the positions (an SDF's normals and eikonal term, which
+            # differentiate it again): plain autograd through the formula, eagerly. The
+            # hand-written backward gives positions none, and torch.compile has no double backward.
+            return hash_encode(*arguments).permute(1, 0, 2).reshape(*shape, self.output_dim)
         # Without a backward to come there is nothing to keep: the plain formula serves eagerly.
         eager = _HashGridFunction.apply if torch.is_grad_enabled() and self.table.requires_grad else hash_encode
         if flat.shape[0] == 0:
