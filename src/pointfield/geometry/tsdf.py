@@ -146,21 +146,25 @@ class TSDFVolume:
         return float((self.block_rows >= 0).float().mean())
 
     @torch.no_grad()
-    def allocate(self, depth: torch.Tensor, cameras: Cameras, index: int) -> torch.Tensor:
+    def allocate(self, depth: torch.Tensor, cameras: Cameras, index: int, pixel_stride: int = 1) -> torch.Tensor:
         """Allocate the blocks within ``truncation`` of the surface of one view's z-depth ``(H, W)``;
         return the flat indices (into :attr:`block_rows`) of those blocks.
 
         Samples each pixel's ray through the band ``z = D +- truncation`` in steps of at most half
         a block, so the band cannot pass through a block without a sample in it (but for a
-        sliver at the block's corner).
+        sliver at the block's corner). ``pixel_stride`` samples every so many pixels' rays along
+        each axis instead: :func:`allocation_stride` chooses one that keeps neighbouring samples
+        on a surface facing the camera closer than half a block, as the steps along a ray are.
         """
         depth = depth.to(self.device, torch.float32)
+        camera = cameras[[index]].to(self.device, torch.float32)
+        height, width = depth.shape
+        centres = pixel_centers(width, height, device=self.device)[::pixel_stride, ::pixel_stride]
+        depth = depth[::pixel_stride, ::pixel_stride]
         seen = depth > 0
         if not seen.any():
             return torch.zeros(0, dtype=torch.long, device=self.device)
-        camera = cameras[[index]].to(self.device, torch.float32)
-        height, width = depth.shape
-        rays = camera.rays_through(0, pixel_centers(width, height, device=self.device)[seen])
+        rays = camera.rays_through(0, centres[seen])
         surface_depth = depth[seen]
         steps = math.ceil(self.truncation / (self.voxel * BLOCK / 2))
         marked = torch.zeros(self.block_rows.numel(), dtype=torch.bool, device=self.device)
@@ -198,7 +202,7 @@ class TSDFVolume:
 
     @torch.no_grad()
     def integrate(self, depth: torch.Tensor, rgb: torch.Tensor, cameras: Cameras, index: int, *,
-                  touched_only: bool = False) -> None:
+                  touched_only: bool = False, pixel_stride: int = 1, interpolate: bool = True) -> None:
         """Fuse one view: z-depth ``(H, W)`` (0 = nothing seen), colour ``(H, W, 3)``, camera ``index``.
 
         Allocates the view's own blocks first (nothing new after :meth:`allocate`), then updates
@@ -206,9 +210,12 @@ class TSDFVolume:
         only the blocks within ``truncation`` of this view's own surface, as open3d's
         ScalableTSDFVolume and VoxelBlockGrid do -- far less work where many views see one room
         from inside, but a block another view allocated, which this one sees as empty space in
-        front of its surface, is not carved by it.
+        front of its surface, is not carved by it. ``pixel_stride``: :meth:`allocate`'s.
+        ``interpolate=False``: the depth of the pixel a voxel falls in, as Curless and Levoy and
+        open3d read it -- what the module docstring's bias needs is pixels wider than voxels, and
+        a sensor's 640 x 480 depth at room scale has pixels narrower than centimetre voxels.
         """
-        touched = self.allocate(depth, cameras, index)
+        touched = self.allocate(depth, cameras, index, pixel_stride)
         camera = cameras[[index]].to(self.device, torch.float32)
         depth = depth.to(self.device, torch.float32)
         rgb = rgb.to(self.device, torch.float32).reshape(-1, 3)
@@ -219,7 +226,7 @@ class TSDFVolume:
         # Whole blocks of rows at a time: gathering contiguous runs of BLOCK^3 is cheaper than row by row.
         pixels, z = _project(camera, self.centres.view(-1, BLOCK_VOXELS, 3)[blocks].reshape(-1, 3))
         pixel, inside = _nearest_pixel(pixels, z, int(camera.width[0]), int(camera.height[0]))
-        seen = interpolated_depth(depth, pixels)
+        seen = interpolated_depth(depth, pixels) if interpolate else torch.where(inside, depth.reshape(-1)[pixel], 0.0)
         sdf = seen - z
         observed = inside & (seen > 0) & (sdf >= -self.truncation)
         tsdf = self.tsdf.view(-1, BLOCK_VOXELS)[blocks].reshape(-1)
@@ -281,6 +288,12 @@ class TSDFVolume:
         summed = torch.where((block_row >= 0)[:, None], self.color_sum[rows.clamp_min(0)], 0.0)
         count = summed[:, 3:]
         return torch.where(count > 0, summed[:, :3] / count.clamp_min(1), torch.full_like(summed[:, :3], 0.5))
+
+
+def allocation_stride(voxel: float, focal: float, far: float) -> int:
+    """The largest pixel stride whose rays, at depth ``far`` on a surface facing the camera, land at
+    most half a block apart: ``stride * far / focal <= BLOCK * voxel / 2`` (at least 1)."""
+    return max(1, int(BLOCK * voxel / 2 * focal / far))
 
 
 def fuse(volume: TSDFVolume, views: Iterable[tuple[torch.Tensor, torch.Tensor]], cameras: Cameras) -> TSDFVolume:

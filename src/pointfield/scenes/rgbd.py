@@ -25,7 +25,10 @@ The pipeline (:func:`reconstruct_rgbd`)
        (:func:`pointfield.registration.odometry.rgbd_odometry`);
     2. TSDF fusion of every frame at its pose (:class:`pointfield.geometry.tsdf.TSDFVolume`,
        truncation 4 voxels, only the blocks near each frame's surface updated by it, as
-       open3d's ScalableTSDFVolume does), over the box of the posed clouds;
+       open3d's ScalableTSDFVolume does, found from every few pixels' rays:
+       :func:`pointfield.geometry.tsdf.allocation_stride`; each voxel reads the depth of the pixel it
+       falls in, as open3d does, unless pixels at ``depth_max`` are wider than a voxel), over the
+       box of the posed clouds;
     3. marching cubes, floaters dropped (:func:`pointfield.geometry.meshes.mesh_from_volume`).
 What comes out (one folder, written whole or not at all)
     ``transforms.json`` (nerfstudio format: posed colour images with ``depth_file_path`` and
@@ -278,7 +281,7 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
 
     from pointfield.devices import pick_device
     from pointfield.geometry.meshes import mesh_from_volume
-    from pointfield.geometry.tsdf import TSDFVolume
+    from pointfield.geometry.tsdf import TSDFVolume, allocation_stride
     from pointfield.scenes.cameras import Cameras
     from pointfield.scenes.formats.registry import atomic_directory
 
@@ -323,10 +326,14 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
                                memory_limit=_memory_limit())
     cameras = Cameras(torch.as_tensor(odometry.poses), camera.fx, camera.fy, camera.cx, camera.cy,
                       camera.width, camera.height)
+    stride_for_blocks = allocation_stride(volume.voxel, min(camera.fx, camera.fy), depth_max)
+    # Interpolating depth between pixels only pays where pixels are wider than voxels (geometry/tsdf.py).
+    interpolate = depth_max / min(camera.fx, camera.fy) > volume.voxel
     for index, (depth_path, colour_path) in enumerate(zip(sequence.depth, sequence.colour)):
         depth = torch.from_numpy(read_depth(depth_path, camera, scale, depth_max))
         colour = torch.from_numpy(read_colour(colour_path, camera))
-        volume.integrate(depth, colour, cameras, index, touched_only=True)
+        volume.integrate(depth, colour, cameras, index, touched_only=True, pixel_stride=stride_for_blocks,
+                         interpolate=interpolate)
     mesh = mesh_from_volume(volume)
     fused = time.perf_counter()
 
