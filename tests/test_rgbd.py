@@ -211,3 +211,5 @@ def test_bad_options_are_one_line(capsys, sequence, tmp_path):
     folder, _ = sequence
     _one_line_error(capsys, ["scene", "from-rgbd", folder, "--out", tmp_path / "o", "--voxel", "0"], "--voxel")
     _one_line_error(capsys, ["scene", "from-rgbd", folder, "--out", tmp_path / "o", "--frames", "0"], "--frames")
+    _one_line_error(capsys, ["scene", "from-rgbd", folder, "--out", tmp_path / "o", "--fusion-threads", "-1"],
+                    "--fusion-threads")

@@ -35,6 +35,9 @@ def add_commands(verbs: argparse._SubParsersAction) -> None:
                         help="odometry clouds thinned to one point per V metres (default 0.02)")
     parser.add_argument("--frames", type=int, metavar="N", help="only the first N frames")
     parser.add_argument("--device", help="where to fuse: cpu, cuda, mps (default: the best available)")
+    parser.add_argument("--fusion-threads", type=int, default=1, metavar="N",
+                        help="torch threads while fusing on the CPU (default 1: each frame's work is too small to "
+                        "share; 0 leaves torch's own setting)")
     parser.add_argument("--overwrite", action="store_true", help="replace SCENE if it exists")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     parser.set_defaults(run=run_from_rgbd)
@@ -45,6 +48,7 @@ def run_from_rgbd(args: argparse.Namespace) -> int:
 
     result = reconstruct_rgbd(args.folder, args.out, intrinsics=args.intrinsics, depth_scale=args.depth_scale,
                               depth_max=args.depth_max, voxel=args.voxel, odometry_voxel=args.odometry_voxel,
-                              frames=args.frames, overwrite=args.overwrite, device=args.device)
+                              frames=args.frames, overwrite=args.overwrite, device=args.device,
+                              fusion_threads=None if args.fusion_threads == 0 else args.fusion_threads)
     print(json.dumps(result.report, indent=2) if args.json else result.format())
     return 0

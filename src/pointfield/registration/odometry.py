@@ -11,10 +11,10 @@ registered with generalized ICP (Segal et al. 2009) in small_gicp, each from the
     pose_i = pose_{i-1} @ T_{i-1 <- i}           camera-to-world, pose_0 = identity
 
 Why generalized ICP and not open3d's photometric + geometric RGB-D odometry or coloured ICP:
-on the 60 frames of open3d's living-room sequence it drifted least of the three and ran
-fastest (absolute trajectory error against open3d's own reconstruction 3.2 mm at voxel 2 cm,
-coloured ICP 9.0 mm, open3d's frame-to-frame hybrid odometry 19.7 mm; docs/rgbd.md gives
-the commands). Colour adds little where the depth is dense and the room has corners; it matters
+on the 60 frames of open3d's living-room sequence it drifted least and ran fastest of them
+(absolute trajectory error against open3d's own reconstruction 0.32 cm; pointfield's coloured
+ICP 0.69 cm in four times the time, point-to-plane ICP 0.71 cm, open3d's frame-to-frame hybrid
+odometry 1.97 cm: ``make bench-rgbd``, docs/rgbd.md). Colour adds little where the depth is dense and the room has corners; it matters
 on a flat wall, which frame-to-frame depth alone cannot pin along the wall.
 
 Each step's fitness (the share of the source's thinned points with a target point within the

@@ -110,10 +110,11 @@ def read_rgbd_folder(folder: str | os.PathLike[str]) -> RGBDFrames:
         by_stem = {p.stem: p for p in colour}
         colour = [by_stem[stem] for stem in depth_stems]
     elif len(depth) != len(colour):
-        only_depth = sorted(set(depth_stems) - set(colour_stems))[:3]
+        only_depth = sorted(set(depth_stems) - set(colour_stems))
+        listed = ", ".join(only_depth[:3]) + (", ..." if len(only_depth) > 3 else "")
         raise PointfieldError(f"{root}: unpaired frames: {len(depth)} depth images in {depth_folder.name}/ but "
                               f"{len(colour)} colour images in {colour_folder.name}/"
-                              + (f" (depth without colour: {', '.join(only_depth)}...)" if only_depth else ""))
+                              + (f" (depth without colour: {listed})" if only_depth else ""))
     return RGBDFrames(root, colour, depth, np.arange(len(depth), dtype=np.float64), "folders")
 
 
@@ -269,13 +270,16 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
                      intrinsics: str | os.PathLike[str] | None = None, depth_scale: float | None = None,
                      depth_max: float = 3.0, voxel: float = 0.01, odometry_voxel: float = 0.02, stride: int = 2,
                      frames: int | None = None, overwrite: bool = False, device: str | None = None,
-                     progress: bool = False) -> RGBDReconstruction:
+                     fusion_threads: int | None = 1) -> RGBDReconstruction:
     """Pose and fuse the RGB-D sequence in ``folder`` and write the scene folder ``out`` (module docstring).
 
     ``intrinsics``: the camera's JSON (default: the folder's one ``camera*.json``); ``depth_scale``:
     stored depth units per metre; ``depth_max``: metres; ``voxel``: the TSDF's voxel (metres);
     ``odometry_voxel``, ``stride``: see :func:`~pointfield.registration.odometry.rgbd_odometry`;
-    ``frames``: only the first so many.
+    ``frames``: only the first so many. ``fusion_threads``: torch threads while fusing on the CPU
+    (default 1; None leaves torch's setting): each frame is a few dozen elementwise passes over
+    about a million voxels, too little to share -- 15 of the living room's frames fused in 3.9 s
+    on one thread and 12.8 s on two of a 2-core machine shared with other jobs (docs/rgbd.md).
     """
     import torch
 
@@ -295,6 +299,9 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
             flag = "--" + name.replace("_", "-")
             raise OptionError(f"{name} must be a positive number, got {value}",
                               command_line=f"{flag} must be a positive number, got {value}")
+    if fusion_threads is not None and fusion_threads < 1:
+        raise OptionError(f"fusion_threads must be 1 or more, got {fusion_threads}",
+                          command_line=f"--fusion-threads must be 0 (torch's own) or more, got {fusion_threads}")
     if frames is not None:
         if frames < 1:
             raise OptionError(f"frames must be 1 or more, got {frames}", command_line=f"--frames must be 1 or more, got {frames}")
@@ -329,11 +336,17 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     stride_for_blocks = allocation_stride(volume.voxel, min(camera.fx, camera.fy), depth_max)
     # Interpolating depth between pixels only pays where pixels are wider than voxels (geometry/tsdf.py).
     interpolate = depth_max / min(camera.fx, camera.fy) > volume.voxel
-    for index, (depth_path, colour_path) in enumerate(zip(sequence.depth, sequence.colour)):
-        depth = torch.from_numpy(read_depth(depth_path, camera, scale, depth_max))
-        colour = torch.from_numpy(read_colour(colour_path, camera))
-        volume.integrate(depth, colour, cameras, index, touched_only=True, pixel_stride=stride_for_blocks,
-                         interpolate=interpolate)
+    threads_before = torch.get_num_threads()
+    if device.type == "cpu" and fusion_threads is not None:
+        torch.set_num_threads(fusion_threads)
+    try:
+        for index, (depth_path, colour_path) in enumerate(zip(sequence.depth, sequence.colour)):
+            depth = torch.from_numpy(read_depth(depth_path, camera, scale, depth_max))
+            colour = torch.from_numpy(read_colour(colour_path, camera))
+            volume.integrate(depth, colour, cameras, index, touched_only=True, pixel_stride=stride_for_blocks,
+                             interpolate=interpolate)
+    finally:
+        torch.set_num_threads(threads_before)
     mesh = mesh_from_volume(volume)
     fused = time.perf_counter()
 
@@ -347,7 +360,8 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
         "fitness_min": float(odometry.fitness.min()) if len(odometry.fitness) else 1.0,
         "fitness_mean": float(odometry.fitness.mean()) if len(odometry.fitness) else 1.0,
         "grid": list(volume.shape), "box": [low.tolist(), high.tolist()],
-        "vertices": len(mesh.points), "faces": len(mesh.faces), "device": str(device), "warnings": notes,
+        "vertices": len(mesh.points), "faces": len(mesh.faces), "device": str(device),
+        "fusion_threads": fusion_threads or threads_before, "warnings": notes,
     }
     with atomic_directory(out, overwrite=overwrite) as directory:
         _write_outputs(directory, sequence, camera, scale, odometry.poses, mesh)
