@@ -278,8 +278,8 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     ``odometry_voxel``, ``stride``: see :func:`~pointfield.registration.odometry.rgbd_odometry`;
     ``frames``: only the first so many. ``fusion_threads``: torch threads while fusing on the CPU
     (default 1; None leaves torch's setting): each frame is a few dozen elementwise passes over
-    about a million voxels, too little to share -- 15 of the living room's frames fused in 3.9 s
-    on one thread and 12.8 s on two of a 2-core machine shared with other jobs (docs/rgbd.md).
+    about a million voxels, too little to share -- 15 of the living room's frames fused in 6.8 s
+    on one thread and 13.6 s on two of a 2-core machine shared with other jobs (docs/rgbd.md).
     """
     import torch
 
