@@ -12,7 +12,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from pointfield.cli import main
-from pointfield.geometry.tsdf import TSDFVolume
+from pointfield.geometry.tsdf import TSDFVolume, allocation_stride
 from pointfield.registration.odometry import Intrinsics, absolute_trajectory_error, rgbd_odometry
 from pointfield.scenes import read_scene
 from pointfield.scenes.cameras import Cameras
@@ -213,3 +213,18 @@ def test_bad_options_are_one_line(capsys, sequence, tmp_path):
     _one_line_error(capsys, ["scene", "from-rgbd", folder, "--out", tmp_path / "o", "--frames", "0"], "--frames")
     _one_line_error(capsys, ["scene", "from-rgbd", folder, "--out", tmp_path / "o", "--fusion-threads", "-1"],
                     "--fusion-threads")
+
+
+def test_allocating_from_every_few_pixels_keeps_every_block_the_surface_passes_through(sequence):
+    _, truth = sequence
+    cameras = Cameras(torch.as_tensor(truth), CAMERA.fx, CAMERA.fy, CAMERA.cx, CAMERA.cy, CAMERA.width, CAMERA.height)
+    depth = torch.from_numpy(render_depth(truth[0]).astype(np.float32))
+    volume = TSDFVolume.create(ROOM[0] - 0.1, ROOM[1] + 0.1, 200)
+    stride = allocation_stride(volume.voxel, CAMERA.fx, float(depth.max()))
+    assert stride > 1  # the test means something: fewer rays than pixels
+    every_pixel = set(volume.allocate(depth, cameras, 0).tolist())
+    sparse = set(TSDFVolume.create(ROOM[0] - 0.1, ROOM[1] + 0.1, 200).allocate(depth, cameras, 0, stride).tolist())
+    surface = TSDFVolume.create(ROOM[0] - 0.1, ROOM[1] + 0.1, 200)
+    surface.truncation = 1e-9  # the band shrunk to the surface: the blocks the surface itself passes through
+    assert set(surface.allocate(depth, cameras, 0).tolist()) <= sparse <= every_pixel
+    assert len(sparse) >= 0.9 * len(every_pixel)

@@ -152,26 +152,33 @@ class TSDFVolume:
 
         Samples each pixel's ray through the band ``z = D +- truncation`` in steps of at most half
         a block, so the band cannot pass through a block without a sample in it (but for a
-        sliver at the block's corner). ``pixel_stride`` samples every so many pixels' rays along
-        each axis instead: :func:`allocation_stride` chooses one that keeps neighbouring samples
-        on a surface facing the camera closer than half a block, as the steps along a ray are.
+        sliver at the block's corner). ``pixel_stride`` samples the band off the surface on every
+        so many pixels' rays along each axis (:func:`allocation_stride` keeps them half a block
+        apart on a surface facing the camera); the surface ``z = D`` itself is still sampled on
+        every pixel's ray, so that each block the surface passes through is allocated, a corner
+        at a grazing angle included.
         """
         depth = depth.to(self.device, torch.float32)
         camera = cameras[[index]].to(self.device, torch.float32)
         height, width = depth.shape
-        centres = pixel_centers(width, height, device=self.device)[::pixel_stride, ::pixel_stride]
-        depth = depth[::pixel_stride, ::pixel_stride]
         seen = depth > 0
         if not seen.any():
             return torch.zeros(0, dtype=torch.long, device=self.device)
+        centres = pixel_centers(width, height, device=self.device)
+        sparse = torch.zeros_like(seen)
+        sparse[::pixel_stride, ::pixel_stride] = True
+        sparse = sparse[seen]
         rays = camera.rays_through(0, centres[seen])
         surface_depth = depth[seen]
         steps = math.ceil(self.truncation / (self.voxel * BLOCK / 2))
         marked = torch.zeros(self.block_rows.numel(), dtype=torch.bool, device=self.device)
         _, by, bz = self.block_rows.shape
         last = torch.tensor(self.block_rows.shape, device=self.device) - 1
+        band = rays if pixel_stride == 1 else rays[sparse]
+        band_depth = surface_depth if pixel_stride == 1 else surface_depth[sparse]
         for step in range(-steps, steps + 1):
-            points = rays.at((surface_depth + step * self.truncation / steps) / rays.axis_cosine)
+            along, at = (rays, surface_depth) if step == 0 else (band, band_depth)
+            points = along.at((at + step * self.truncation / steps) / along.axis_cosine)
             block = torch.floor((points - self.low) / (self.voxel * BLOCK)).long()
             block = block[((block >= 0) & (block <= last)).all(dim=1)]
             marked[(block[:, 0] * by + block[:, 1]) * bz + block[:, 2]] = True
