@@ -371,10 +371,14 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     return RGBDReconstruction(out, odometry.poses, report)
 
 
-def _memory_limit() -> int | None:
-    from pointfield.geometry.meshes import _default_memory_limit
+def _memory_limit() -> int:
+    """Bytes the TSDF may take: the share of the machine's memory that ``nerf export --mesh`` allows its grid."""
+    from pointfield.geometry.meshes import DEFAULT_MEMORY_FRACTION
 
-    return _default_memory_limit()
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") * DEFAULT_MEMORY_FRACTION)
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30
 
 
 def _write_outputs(directory: Path, sequence: RGBDFrames, camera: Intrinsics, depth_scale: float,
