@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from pointfield.cli import scene_rgbd
+
 SCENE_FORMATS = ("blender", "nerfstudio", "llff", "colmap", "npz")
 WRITABLE_FORMATS = ("nerfstudio", "blender")
 SYNTHETIC_NAMES = ("cube", "textured-cube", "spheres", "still-life", "textured")
@@ -110,6 +112,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     from_video.add_argument("--frames", type=int, default=150, help="frames to pose (default: 150)")
     _posing_options(from_video)
     from_video.set_defaults(run=_run_from_video)
+    scene_rgbd.add_commands(verbs)
 
 
 def _posing_options(parser: argparse.ArgumentParser) -> None:

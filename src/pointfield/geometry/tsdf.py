@@ -146,33 +146,46 @@ class TSDFVolume:
         return float((self.block_rows >= 0).float().mean())
 
     @torch.no_grad()
-    def allocate(self, depth: torch.Tensor, cameras: Cameras, index: int) -> None:
-        """Allocate the blocks within ``truncation`` of the surface of one view's z-depth ``(H, W)``.
+    def allocate(self, depth: torch.Tensor, cameras: Cameras, index: int, pixel_stride: int = 1) -> torch.Tensor:
+        """Allocate the blocks within ``truncation`` of the surface of one view's z-depth ``(H, W)``;
+        return the flat indices (into :attr:`block_rows`) of those blocks.
 
         Samples each pixel's ray through the band ``z = D +- truncation`` in steps of at most half
         a block, so the band cannot pass through a block without a sample in it (but for a
-        sliver at the block's corner).
+        sliver at the block's corner). ``pixel_stride`` samples the band off the surface on every
+        so many pixels' rays along each axis (:func:`allocation_stride` keeps them half a block
+        apart on a surface facing the camera); the surface ``z = D`` itself is still sampled on
+        every pixel's ray, so that each block the surface passes through is allocated, a corner
+        at a grazing angle included.
         """
         depth = depth.to(self.device, torch.float32)
-        seen = depth > 0
-        if not seen.any():
-            return
         camera = cameras[[index]].to(self.device, torch.float32)
         height, width = depth.shape
-        rays = camera.rays_through(0, pixel_centers(width, height, device=self.device)[seen])
+        seen = depth > 0
+        if not seen.any():
+            return torch.zeros(0, dtype=torch.long, device=self.device)
+        centres = pixel_centers(width, height, device=self.device)
+        sparse = torch.zeros_like(seen)
+        sparse[::pixel_stride, ::pixel_stride] = True
+        sparse = sparse[seen]
+        rays = camera.rays_through(0, centres[seen])
         surface_depth = depth[seen]
         steps = math.ceil(self.truncation / (self.voxel * BLOCK / 2))
         marked = torch.zeros(self.block_rows.numel(), dtype=torch.bool, device=self.device)
         _, by, bz = self.block_rows.shape
         last = torch.tensor(self.block_rows.shape, device=self.device) - 1
+        band = rays if pixel_stride == 1 else rays[sparse]
+        band_depth = surface_depth if pixel_stride == 1 else surface_depth[sparse]
         for step in range(-steps, steps + 1):
-            points = rays.at((surface_depth + step * self.truncation / steps) / rays.axis_cosine)
+            along, at = (rays, surface_depth) if step == 0 else (band, band_depth)
+            points = along.at((at + step * self.truncation / steps) / along.axis_cosine)
             block = torch.floor((points - self.low) / (self.voxel * BLOCK)).long()
             block = block[((block >= 0) & (block <= last)).all(dim=1)]
             marked[(block[:, 0] * by + block[:, 1]) * bz + block[:, 2]] = True
         new = marked & (self.block_rows.view(-1) < 0)
         if new.any():
             self._add_blocks(torch.nonzero(new)[:, 0])
+        return torch.nonzero(marked)[:, 0]
 
     def _add_blocks(self, flat_blocks: torch.Tensor) -> None:
         count = len(flat_blocks)
@@ -195,27 +208,70 @@ class TSDFVolume:
         self.color_sum = torch.cat([self.color_sum, torch.zeros(len(indices), 4, device=self.device)])
 
     @torch.no_grad()
-    def integrate(self, depth: torch.Tensor, rgb: torch.Tensor, cameras: Cameras, index: int) -> None:
+    def integrate(self, depth: torch.Tensor, rgb: torch.Tensor, cameras: Cameras, index: int, *,
+                  touched_only: bool = False, pixel_stride: int = 1, interpolate: bool = True) -> None:
         """Fuse one view: z-depth ``(H, W)`` (0 = nothing seen), colour ``(H, W, 3)``, camera ``index``.
 
         Allocates the view's own blocks first (nothing new after :meth:`allocate`), then updates
-        every allocated voxel the view observes.
+        every allocated voxel the view observes (:meth:`blocks_in_view`). ``touched_only``: update
+        only the blocks within ``truncation`` of this view's own surface, as open3d's
+        ScalableTSDFVolume and VoxelBlockGrid do -- far less work where many views see one room
+        from inside, but a block another view allocated, which this one sees as empty space in
+        front of its surface, is not carved by it. ``pixel_stride``: :meth:`allocate`'s.
+        ``interpolate=False``: the depth of the pixel a voxel falls in, as Curless and Levoy and
+        open3d read it -- what the module docstring's bias needs is pixels wider than voxels, and
+        a sensor's 640 x 480 depth at room scale has pixels narrower than centimetre voxels.
         """
-        self.allocate(depth, cameras, index)
+        touched = self.allocate(depth, cameras, index, pixel_stride)
         camera = cameras[[index]].to(self.device, torch.float32)
         depth = depth.to(self.device, torch.float32)
         rgb = rgb.to(self.device, torch.float32).reshape(-1, 3)
-        pixels, z = _project(camera, self.centres)
+        if touched_only:
+            blocks = self.block_rows.view(-1)[touched]
+        else:
+            blocks = self.blocks_in_view(camera, float(depth.max()) + self.truncation)
+        # Whole blocks of rows at a time: gathering contiguous runs of BLOCK^3 is cheaper than row by row.
+        pixels, z = _project(camera, self.centres.view(-1, BLOCK_VOXELS, 3)[blocks].reshape(-1, 3))
         pixel, inside = _nearest_pixel(pixels, z, int(camera.width[0]), int(camera.height[0]))
-        seen = interpolated_depth(depth, pixels)
+        seen = interpolated_depth(depth, pixels) if interpolate else torch.where(inside, depth.reshape(-1)[pixel], 0.0)
         sdf = seen - z
         observed = inside & (seen > 0) & (sdf >= -self.truncation)
-        weight = self.weight
-        fused = (self.tsdf * weight + (sdf / self.truncation).clamp(max=1.0)) / (weight + 1)
-        self.tsdf = torch.where(observed, fused, self.tsdf)
-        self.weight = weight + observed
+        tsdf = self.tsdf.view(-1, BLOCK_VOXELS)[blocks].reshape(-1)
+        weight = self.weight.view(-1, BLOCK_VOXELS)[blocks].reshape(-1)
+        fused = (tsdf * weight + (sdf / self.truncation).clamp(max=1.0)) / (weight + 1)
+        self.tsdf.view(-1, BLOCK_VOXELS)[blocks] = torch.where(observed, fused, tsdf).view(-1, BLOCK_VOXELS)
+        self.weight.view(-1, BLOCK_VOXELS)[blocks] = (weight + observed).view(-1, BLOCK_VOXELS)
         near = observed & (sdf < self.truncation)
-        self.color_sum += torch.cat([rgb[pixel], torch.ones_like(z)[:, None]], 1) * near[:, None]
+        colour = torch.cat([rgb[pixel], torch.ones_like(z)[:, None]], 1) * near[:, None]
+        self.color_sum.view(-1, BLOCK_VOXELS, 4)[blocks] += colour.view(-1, BLOCK_VOXELS, 4)
+
+    def blocks_in_view(self, camera: Cameras, far: float) -> torch.Tensor:
+        """``(K,)`` the allocated blocks (by position in the rows) that one pinhole ``camera`` may observe closer than ``far``.
+
+        A block is left out when its bounding sphere (centre ``c``, radius ``r`` = half the block's
+        diagonal) lies wholly outside one of the view's half-spaces: behind the camera, past
+        ``far`` along the axis, or beyond an image edge -- the plane through the camera centre and
+        that edge, e.g. ``u >= 0  <=>  fx X + cx Z >= 0`` in camera coordinates. Every voxel of
+        such a block projects outside the image or lies farther than any depth plus the
+        truncation, so :meth:`integrate` would leave it as it is: culling changes no value, only
+        the work, which then follows the blocks in view rather than every block allocated (a
+        room scanned by a moving camera sees a fraction of it at a time). Cameras with
+        distortion keep every block.
+        """
+        count = len(self.tsdf) // BLOCK_VOXELS
+        every = torch.arange(count, device=self.device)
+        if count == 0 or camera.model == "OPENCV_FISHEYE" or bool(camera.distortion.any()):
+            return every
+        centre = self.centres.view(count, BLOCK_VOXELS, 3)[:, 0] + (BLOCK - 1) / 2 * self.voxel
+        radius = math.sqrt(3) * BLOCK * self.voxel / 2
+        local = (centre - camera.centers[0]) @ camera.rotations[0]
+        fx, fy, cx, cy = (float(v[0]) for v in (camera.fx, camera.fy, camera.cx, camera.cy))
+        width, height = float(camera.width[0]), float(camera.height[0])
+        normals = torch.tensor([[fx, 0, cx], [-fx, 0, width - cx], [0, fy, cy], [0, -fy, height - cy], [0, 0, 1]],
+                               dtype=local.dtype, device=self.device)
+        normals = normals / normals.norm(dim=1, keepdim=True)
+        keep = ((local @ normals.T) >= -radius).all(dim=1) & (local[:, 2] <= far + radius)
+        return torch.nonzero(keep)[:, 0]
 
     def dense(self) -> tuple[np.ndarray, np.ndarray]:
         """The grid as arrays of :attr:`shape`: F (float32, 1 where unobserved) and whether observed."""
@@ -239,6 +295,12 @@ class TSDFVolume:
         summed = torch.where((block_row >= 0)[:, None], self.color_sum[rows.clamp_min(0)], 0.0)
         count = summed[:, 3:]
         return torch.where(count > 0, summed[:, :3] / count.clamp_min(1), torch.full_like(summed[:, :3], 0.5))
+
+
+def allocation_stride(voxel: float, focal: float, far: float) -> int:
+    """The largest pixel stride whose rays, at depth ``far`` on a surface facing the camera, land at
+    most half a block apart: ``stride * far / focal <= BLOCK * voxel / 2`` (at least 1)."""
+    return max(1, int(BLOCK * voxel / 2 * focal / far))
 
 
 def fuse(volume: TSDFVolume, views: Iterable[tuple[torch.Tensor, torch.Tensor]], cameras: Cameras) -> TSDFVolume:
