@@ -104,15 +104,13 @@ bench-march: $(BIN)/.installed
 bench-registration: $(BIN)/.open3d
 	$(BIN)/python benchmarks/bench_registration.py
 
-<<<<<<< HEAD
 # Multiway registration: pointfield's pose graph against open3d's global_optimization, same inputs (issue 44)
 bench-align: $(BIN)/.open3d
 	$(BIN)/python benchmarks/bench_align.py
-=======
+
 # scene from-rgbd against open3d's RGB-D odometry and TSDF on its 60 living-room frames, in one run (issue 44)
 bench-rgbd: $(BIN)/.open3d
 	$(BIN)/python benchmarks/bench_rgbd.py
->>>>>>> s50-rgbd
 
 bench-tsdf: $(BIN)/.open3d
 	$(BIN)/python benchmarks/bench_tsdf.py
