@@ -68,6 +68,8 @@ SHARED = {
     "bun0.pcd": "registration/pcl_bun0.pcd",
     "bun4.pcd": "registration/pcl_bun4.pcd",
     "table.pcd": "segmentation/pcl_milk_cartoon_all_small_clorox.pcd",
+    "frames": "rgbd/livingroom1_micro",
+    "camera.json": "rgbd/livingroom1_micro/camera_primesense.json",
 }
 """Placeholder name of the pages -> the real file of ../shared/data it stands for."""
 

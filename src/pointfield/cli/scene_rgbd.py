@@ -40,6 +40,7 @@ def add_commands(verbs: argparse._SubParsersAction) -> None:
                         "share; 0 leaves torch's own setting)")
     parser.add_argument("--overwrite", action="store_true", help="replace SCENE if it exists")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
+    parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
     parser.set_defaults(run=run_from_rgbd)
 
 
@@ -49,6 +50,7 @@ def run_from_rgbd(args: argparse.Namespace) -> int:
     result = reconstruct_rgbd(args.folder, args.out, intrinsics=args.intrinsics, depth_scale=args.depth_scale,
                               depth_max=args.depth_max, voxel=args.voxel, odometry_voxel=args.odometry_voxel,
                               frames=args.frames, overwrite=args.overwrite, device=args.device,
-                              fusion_threads=None if args.fusion_threads == 0 else args.fusion_threads)
+                              fusion_threads=None if args.fusion_threads == 0 else args.fusion_threads,
+                              progress=args.progress)
     print(json.dumps(result.report, indent=2) if args.json else result.format())
     return 0

@@ -270,7 +270,7 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
                      intrinsics: str | os.PathLike[str] | None = None, depth_scale: float | None = None,
                      depth_max: float = 3.0, voxel: float = 0.01, odometry_voxel: float = 0.02, stride: int = 2,
                      frames: int | None = None, overwrite: bool = False, device: str | None = None,
-                     fusion_threads: int | None = 1) -> RGBDReconstruction:
+                     fusion_threads: int | None = 1, progress: bool = True) -> RGBDReconstruction:
     """Pose and fuse the RGB-D sequence in ``folder`` and write the scene folder ``out`` (module docstring).
 
     ``intrinsics``: the camera's JSON (default: the folder's one ``camera*.json``); ``depth_scale``:
@@ -280,6 +280,7 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     (default 1; None leaves torch's setting): each frame is a few dozen elementwise passes over
     about a million voxels, too little to share -- 15 of the living room's frames fused in 6.8 s
     on one thread and 13.6 s on two of a 2-core machine shared with other jobs (docs/rgbd.md).
+    ``progress``: a bar over the frames, once for the odometry and once for the fusion (on a terminal).
     """
     import torch
 
@@ -288,6 +289,7 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     from pointfield.geometry.tsdf import TSDFVolume, allocation_stride
     from pointfield.scenes.cameras import Cameras
     from pointfield.scenes.formats.registry import atomic_directory
+    from pointfield.training.console import progress_bar
 
     started = time.perf_counter()
     sequence = read_rgbd_folder(folder)
@@ -312,8 +314,10 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
                               command_line=f"{out}: directory exists and is not empty (pass --overwrite to replace it)")
 
     def depths():
-        for path in sequence.depth:
-            yield read_depth(path, camera, scale, depth_max)
+        with progress_bar(progress, total=len(sequence), desc="odometry", unit="frame") as bar:
+            for path in sequence.depth:
+                yield read_depth(path, camera, scale, depth_max)
+                bar.update(1)
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -340,7 +344,9 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     if device.type == "cpu" and fusion_threads is not None:
         torch.set_num_threads(fusion_threads)
     try:
-        for index, (depth_path, colour_path) in enumerate(zip(sequence.depth, sequence.colour)):
+        frames_with_bar = progress_bar(progress, iterable=zip(sequence.depth, sequence.colour), total=len(sequence),
+                                       desc="fusion", unit="frame")
+        for index, (depth_path, colour_path) in enumerate(frames_with_bar):
             depth = torch.from_numpy(read_depth(depth_path, camera, scale, depth_max))
             colour = torch.from_numpy(read_colour(colour_path, camera))
             volume.integrate(depth, colour, cameras, index, touched_only=True, pixel_stride=stride_for_blocks,
