@@ -16,6 +16,7 @@ from pointfield.cli import main
 from pointfield.clouds.cloud import PointCloud
 from pointfield.errors import PointfieldError
 from pointfield.registration import PoseGraph, PoseGraphEdge, align, aligned, optimize_pose_graph, streamed
+from pointfield.streaming import memory
 
 
 def shift(x: float, angle: float = 0.0) -> np.ndarray:
@@ -175,8 +176,8 @@ def test_the_merge_in_chunks_is_the_merge_in_memory(scan_files, tmp_path):
 
 def test_cloud_align_thins_scans_past_the_memory_budget_while_reading(scan_files, tmp_path, capsys, monkeypatch):
     paths, truth = scan_files
-    monkeypatch.setattr(streamed, "resident_bytes", lambda: 0)  # the budget, not this test process, decides
-    monkeypatch.setattr(streamed, "PAIR_BYTES_PER_POINT", 15_000)  # 6,000 points need 90 MB: past 256M - 200M
+    monkeypatch.setattr(memory, "resident_bytes", lambda: 0)  # the budget, not this test process, decides
+    monkeypatch.setattr(streamed, "PAIR_BYTES_PER_POINT", 15_000)  # 6,000 points need 90 MB: past the 64 MiB 256M leaves
     out = tmp_path / "merged.laz"
     assert main(["cloud", "align", *map(str, paths[:4]), "--out", str(out), "--method", "gicp", "--voxel", "0.02",
                  "--memory", "256M"]) == 0
@@ -190,7 +191,7 @@ def test_cloud_align_thins_scans_past_the_memory_budget_while_reading(scan_files
 
 def test_cloud_align_refuses_in_one_line_naming_the_voxel_that_fits(scan_files, tmp_path, capsys, monkeypatch):
     paths, _ = scan_files
-    monkeypatch.setattr(streamed, "resident_bytes", lambda: 0)
+    monkeypatch.setattr(memory, "resident_bytes", lambda: 0)
     monkeypatch.setattr(streamed, "PAIR_BYTES_PER_POINT", 40_000)
     code = main(["cloud", "align", *map(str, paths[:4]), "--out", str(tmp_path / "m.ply"), "--voxel", "0.02",
                  "--memory", "256M"])
@@ -201,7 +202,7 @@ def test_cloud_align_refuses_in_one_line_naming_the_voxel_that_fits(scan_files, 
 
 def test_cloud_register_holds_to_the_memory_budget_too(scan_files, tmp_path, capsys, monkeypatch):
     paths, truth = scan_files
-    monkeypatch.setattr(streamed, "resident_bytes", lambda: 0)
+    monkeypatch.setattr(memory, "resident_bytes", lambda: 0)
     monkeypatch.setattr(streamed, "PAIR_BYTES_PER_POINT", 15_000)
     out = tmp_path / "moved.ply"
     assert main(["cloud", "register", str(paths[1]), str(paths[0]), "--method", "gicp", "--init", _identity(tmp_path),

@@ -14,6 +14,7 @@ from pointfield.streaming.memory import (
     MIN_MEMORY,
     parse_memory,
     plan,
+    usable_bytes,
 )
 
 
@@ -37,6 +38,17 @@ def test_a_larger_budget_buys_larger_chunks_and_more_state_never_past_the_budget
 def test_a_budget_too_small_for_the_interpreter_is_refused():
     with pytest.raises(ValueError, match="too small"):
         plan(MIN_MEMORY - 1, 100)
+
+
+def test_what_a_budget_leaves_is_the_budget_less_the_process_but_never_under_a_quarter(monkeypatch):
+    """A fresh command keeps all but its interpreter; a process already bigger than the budget (a
+    notebook, a test runner's worker) still gets a quarter, as streaming and registration both plan."""
+    from pointfield.streaming import memory
+
+    monkeypatch.setattr(memory, "resident_bytes", lambda: 300 << 20)
+    assert usable_bytes(1 << 30) == (1 << 30) - (300 << 20)
+    monkeypatch.setattr(memory, "resident_bytes", lambda: 3 << 30)
+    assert usable_bytes(1 << 30) == 1 << 28
 
 
 FAULTS_OF_REUSING_AN_ARRAY = """

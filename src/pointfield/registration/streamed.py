@@ -35,7 +35,7 @@ from pointfield.errors import PointfieldError
 from pointfield.registration.pairwise import aligned, check_transformation
 from pointfield.streaming.chunks import ChunkSource, StreamingFallback, WholeSource, open_source
 from pointfield.streaming.jobs import bytes_per_point, finite_bounds, indexed_chunks, scratch_folder, streaming_job
-from pointfield.streaming.memory import BASELINE_BYTES, DEFAULT_MEMORY, parse_memory, plan, resident_bytes
+from pointfield.streaming.memory import DEFAULT_MEMORY, parse_memory, plan, usable_bytes
 from pointfield.streaming.merging import common_layout, conform
 from pointfield.streaming.voxels import VoxelGrid, reduce_voxels
 from pointfield.streaming.writers import open_writer
@@ -99,7 +99,7 @@ def read_scans(paths: Sequence[str | os.PathLike[str]], voxel: float | None = No
     if memory is None:
         return [read(p) for p in paths], []
     budget = parse_memory(memory)
-    usable = max(budget - max(BASELINE_BYTES, resident_bytes()), 0)
+    usable = usable_bytes(budget)
     with warnings.catch_warnings():
         # A text file is read whole to be counted, as it would have been to be registered: no news.
         warnings.simplefilter("ignore", StreamingFallback)

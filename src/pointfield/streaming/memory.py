@@ -71,8 +71,7 @@ def plan(budget: int | str, bytes_per_point: int, chunk_points: int | None = Non
     budget = parse_memory(budget)
     if budget < MIN_MEMORY:
         raise OptionError(f"--memory {budget >> 20} MiB is too small to hold the interpreter; give at least 256M")
-    baseline = max(BASELINE_BYTES, resident_bytes())
-    usable = max(budget - baseline, budget // 4)
+    usable = usable_bytes(budget)
     if chunk_points is None:
         chunk_points = usable // 4 // max(1, CHUNK_COPIES * bytes_per_point)
         chunk_points = int(min(MAX_CHUNK_POINTS, max(MIN_CHUNK_POINTS, chunk_points)))
@@ -124,6 +123,14 @@ _JOBS_LOCK = threading.Lock()
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc's malloc.h
 GLIBC_MMAP_THRESHOLD_MAX = 32 << 20
 """Where glibc's dynamic mmap threshold stops rising on 64-bit systems (its trim threshold: twice that)."""
+
+
+def usable_bytes(budget: int) -> int:
+    """What ``budget`` bytes leave for data beside the interpreter: the budget less this process's
+    resident size now (at least ``BASELINE_BYTES``), and never less than a quarter of the budget,
+    so that a process already holding more than the budget (a notebook, a test runner's worker)
+    still works, within that quarter, rather than refusing everything."""
+    return max(budget - max(BASELINE_BYTES, resident_bytes()), budget // 4)
 
 
 def resident_bytes() -> int:
