@@ -8,6 +8,7 @@ from pointfield.fields.field import FieldOutput, RadianceField, RayBudget, rende
 from pointfield.fields.nerf import NeRF, TinyNeRF
 from pointfield.fields.ngp import InstantNGP
 from pointfield.fields.rays import RayBundle
+from pointfield.fields.sdf import NeuralSDF
 
 
 def _rays(count: int) -> RayBundle:
@@ -17,11 +18,12 @@ def _rays(count: int) -> RayBundle:
     return RayBundle(origins, directions, torch.full((count,), 2.0), torch.full((count,), 6.0))
 
 
-def test_every_model_is_a_radiance_field_and_only_ngp_asks_for_a_sample_budget():
-    assert MODELS == {"tiny": TinyNeRF, "nerf": NeRF, "ngp": InstantNGP}
+def test_every_model_is_a_radiance_field_and_only_the_marched_ones_ask_for_a_sample_budget():
+    assert MODELS == {"tiny": TinyNeRF, "nerf": NeRF, "ngp": InstantNGP, "sdf": NeuralSDF}
     assert all(issubclass(model, RadianceField) for model in MODELS.values())
     assert TinyNeRF().target_samples is None and NeRF().target_samples is None
     assert InstantNGP(backend="eager", target_samples=1000).target_samples == 1000
+    assert NeuralSDF(backend="eager", target_samples=1000).target_samples == 1000
 
 
 def test_the_hooks_do_nothing_by_default():
