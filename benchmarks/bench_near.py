@@ -69,6 +69,9 @@ def main() -> int:
     parser.add_argument("--ngp-options", type=json.loads, default={},
                         help="more ngp model options, JSON (default none: the CPU's defaults); e.g. a smaller grid and "
                              "'target_samples' for a loaded machine, as tests/fields/test_any_camera.py trains")
+    parser.add_argument("--splat-options", type=json.loads, default={},
+                        help="splat train options, JSON (default none: the defaults); e.g. '{\"mip\": true}' for "
+                        "Mip-Splatting's filters, made for cameras nearer than the training ones")
     parser.add_argument("--models", nargs="+", choices=sorted(GOALS_DB), default=sorted(GOALS_DB),
                         help="which models to train and score (default both)")
     parser.add_argument("--out", type=Path, default=Path("bench-output/near"), help="scene and run folders")
@@ -77,7 +80,8 @@ def main() -> int:
     scene = make_scene(args.scene, args.out / "scene", views=args.views, size=args.size)
     record = Record("near", "Renders from cameras the models never saw: nearer, and the turntable", issue="43",
                     about=f"`scene make {args.scene}` at {args.size} x {args.size}, {args.views} views 4 units from "
-                          f"its centre; ngp trained {args.ngp_steps} steps (options {json.dumps(args.ngp_options)}) and splats {args.splat_steps} steps in the "
+                          f"its centre; ngp trained {args.ngp_steps} steps (options {json.dumps(args.ngp_options)}) "
+                          f"and splats {args.splat_steps} steps (options {json.dumps(args.splat_options)}) in the "
                           f"same run. Held out: the run's own held-out views; nearer: {args.near_views} views from "
                           f"{args.near}x the training distance; turntable: {args.frames} frames of the orbit path; "
                           "the last two against the scene's analytic truth from the same cameras. Every score is the "
@@ -85,7 +89,8 @@ def main() -> int:
     runs = {
         "ngp": lambda out: train_field(scene, model="ngp", out=out, steps=args.ngp_steps, progress=False,
                                        model_options={**args.ngp_options, "backend": args.ngp_backend}),
-        "splats": lambda out: train_splats(scene, out=out, steps=args.splat_steps, progress=False),
+        "splats": lambda out: train_splats(scene, out=out, steps=args.splat_steps, progress=False,
+                                           **args.splat_options),
     }
     nearer = synthetic_cameras(args.near_views, args.size, radius=args.near * TRAINING_DISTANCE)
     rows = []
