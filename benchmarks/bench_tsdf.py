@@ -58,17 +58,18 @@ def fuse_pointfield(cameras, depths, colours, resolution: int, device="cpu"):
 def nearest_pixel_depth() -> Iterator[None]:
     """While the block runs, pointfield's fusion takes each voxel's depth from the pixel it falls in
     (the classic rule: Curless and Levoy, open3d) instead of interpolating between the four pixel
-    centres around it (:func:`pointfield.geometry.tsdf.interpolated_depth`). Benchmarks only: the
-    package has one rule, and this measures what it costs and gains against the other."""
+    centres around it (:func:`pointfield.geometry.tsdf.interpolated_depth`): every
+    :meth:`~pointfield.geometry.tsdf.TSDFVolume.integrate` runs with ``interpolate=False``, the
+    package's own nearest-pixel rule (what ``scene from-rgbd`` uses for sensor depth finer than its
+    voxels). Exports always interpolate; this measures what that gains against the other rule."""
     from pointfield.geometry import tsdf
 
-    def nearest(depth: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
-        height, width = depth.shape
-        in_front = torch.ones(len(pixels), device=pixels.device)  # fusion masks the rest itself
-        pixel, _ = tsdf._nearest_pixel(pixels, in_front, width, height)
-        return depth.reshape(-1)[pixel]
+    integrate = tsdf.TSDFVolume.integrate
 
-    with mock.patch.object(tsdf, "interpolated_depth", nearest):
+    def nearest(self, *arguments, **options):
+        return integrate(self, *arguments, **{**options, "interpolate": False})
+
+    with mock.patch.object(tsdf.TSDFVolume, "integrate", nearest):
         yield
 
 
