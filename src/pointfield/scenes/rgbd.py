@@ -396,7 +396,7 @@ def _write_outputs(directory: Path, sequence: RGBDFrames, camera: Intrinsics, de
 
     write(directory / "mesh.ply", mesh)
     write(directory / "cloud.ply", PointCloud(mesh.points, {"colors": mesh.fields["colors"],
-                                                            "normals": vertex_normals(mesh.points, mesh.faces)}))
+                                                            "normals": _vertex_normals(mesh)}))
     write_tum_trajectory(directory / "trajectory.txt", poses, sequence.timestamps)
     write_log_trajectory(directory / "trajectory.log", poses)
     (directory / "images").mkdir()
@@ -416,14 +416,11 @@ def _write_outputs(directory: Path, sequence: RGBDFrames, camera: Intrinsics, de
     })
 
 
-def vertex_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``(V, 3)`` float32 unit normals: the area-weighted sum of the normals of each vertex's faces."""
-    corners = points[faces]
-    face_normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    normals = np.zeros_like(points, dtype=np.float64)
-    for k in range(3):
-        np.add.at(normals, faces[:, k], face_normals)
-    return (normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)).astype(np.float32)
+def _vertex_normals(mesh) -> np.ndarray:
+    """``(V, 3)`` float32 unit vertex normals of ``mesh``, by trimesh (faces wound counter-clockwise seen from outside)."""
+    import trimesh
+
+    return np.asarray(trimesh.Trimesh(mesh.points, mesh.faces, process=False).vertex_normals, np.float32)
 
 
 def rotation_to_quaternion(rotation: np.ndarray) -> np.ndarray:
