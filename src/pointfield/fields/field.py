@@ -116,6 +116,14 @@ class RayBudget:
                 f"largest={self.largest})")
 
 
+def checked_box(box) -> torch.Tensor:
+    """A scene box ``((x0, y0, z0), (x1, y1, z1))`` as float32 ``(2, 3)``; ValueError unless min < max on every axis."""
+    box = torch.as_tensor(box, dtype=torch.float32).reshape(2, 3)
+    if not bool((box[1] > box[0]).all()):
+        raise ValueError(f"scene box must have min < max on every axis, got {box.tolist()}")
+    return box
+
+
 @torch.no_grad()
 def render_in_chunks(
     model: RadianceField,

@@ -44,7 +44,7 @@ from pointfield.fields.activations import trunc_exp
 from pointfield.fields.encodings.contraction import box_to_unit, contract
 from pointfield.fields.encodings.hashgrid import HashEncoding
 from pointfield.fields.encodings.spherical_harmonics import sh_basis
-from pointfield.fields.field import PROBE_COST, FieldOutput, RadianceField
+from pointfield.fields.field import PROBE_COST, FieldOutput, RadianceField, checked_box
 from pointfield.fields.rays import RayBundle, RaySamples, SceneExtent
 from pointfield.fields.rendering import composite, render_rays, transmittance_from_optical_depth
 from pointfield.fields.sampling.occupancy import OccupancyGrid, march_rays
@@ -165,9 +165,7 @@ class InstantNGP(RadianceField):
         initial_optical_depth: float = 1.2,
     ):
         super().__init__()
-        box = torch.as_tensor(box, dtype=torch.float32).reshape(2, 3)
-        if not bool((box[1] > box[0]).all()):
-            raise ValueError(f"scene box must have min < max on every axis, got {box.tolist()}")
+        box = checked_box(box)
         self.register_buffer("box", box.clone())
         self.unbounded = bool(unbounded)
         self.backend = backend  # of the fused kernels: hash encodings and the marcher's occupancy test

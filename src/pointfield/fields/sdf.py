@@ -57,7 +57,7 @@ from torch.nn import functional as F
 
 from pointfield.fields.encodings.hashgrid import HashEncoding
 from pointfield.fields.encodings.spherical_harmonics import sh_basis
-from pointfield.fields.field import PROBE_COST, FieldOutput, RadianceField
+from pointfield.fields.field import PROBE_COST, FieldOutput, RadianceField, checked_box
 from pointfield.fields.ngp import DIRECTION_SH_DEGREE, GEOMETRY_FEATURES
 from pointfield.fields.rays import RayBundle, SceneExtent
 from pointfield.fields.rendering import composite
@@ -164,9 +164,7 @@ class NeuralSDF(RadianceField):
         if unbounded:
             raise ValueError("the sdf model needs a bounded scene (an object in a box); pass --scene-box bounded "
                              "or the box's six numbers")
-        box = torch.as_tensor(box, dtype=torch.float32).reshape(2, 3)
-        if not bool((box[1] > box[0]).all()):
-            raise ValueError(f"scene box must have min < max on every axis, got {box.tolist()}")
+        box = checked_box(box)
         if not 0 < sphere_radius < 1:
             raise ValueError(f"sphere_radius is a fraction of the box's half-side, in (0, 1); got {sphere_radius}")
         self.register_buffer("box", box.clone())
