@@ -140,3 +140,40 @@ def test_a_final_evaluation_that_cannot_fit_one_view_scores_smaller_views(monkey
     # 5 s left: a full-size view (16 s) does not fit, a half-size one (4 s) does, and a second would not.
     assert scores["evaluation_downscale"] == 2 and sizes[1:] == [64] and scores["views"] == 1
     assert renders[0][1]["rgb"].shape == (64, 64, 3) == renders[0][2].shape
+
+
+def test_a_run_stopped_before_any_evaluation_times_a_small_view_before_its_final_one(monkeypatch):
+    """No view cost measured (training stopped before its first round ended): a full-size first view
+    of an untrained field can take minutes on a CPU, past --max-time (docs/photos.md took 184 s
+    under --max-time 5). One view at the smallest size is timed first and the rest sized from it."""
+    scene = synthetic_scene("cube", views=12, size=128)
+    clock = [0.0]
+    monkeypatch.setattr(heldout.time, "perf_counter", lambda: clock[0])
+    sizes = []
+
+    def render(cameras):  # 16 s a view at 128 x 128, in proportion to the pixels
+        width, height = int(cameras.width[0]), int(cameras.height[0])
+        sizes.append(width)
+        clock[0] += 16.0 * width * height / 128**2
+        return [{"rgb": torch.zeros(height, width, 3), "depth": torch.zeros(height, width),
+                 "opacity": torch.ones(height, width)}]
+
+    evaluation = heldout.HeldoutEvaluation(scene, [0, 1, 2], [0])
+    scores, _ = evaluation.final(render, TimeBudget(6.0 + heldout.WRITING_SECONDS, started=0.0))
+    # the probe: 32 x 32 in 1 s, so 16 s at full size; 5 s left then: one half-size view (4 s) fits.
+    assert sizes == [32, 64] and scores["evaluation_downscale"] == 2 and scores["views"] == 1
+    assert clock[0] <= 6.0
+
+
+def test_without_a_time_budget_the_final_evaluation_renders_no_probe():
+    scene = synthetic_scene("cube", views=12, size=64)
+    sizes = []
+
+    def render(cameras):
+        width, height = int(cameras.width[0]), int(cameras.height[0])
+        sizes.append(width)
+        return [{"rgb": torch.zeros(height, width, 3), "depth": torch.zeros(height, width),
+                 "opacity": torch.ones(height, width)}]
+
+    scores, _ = heldout.HeldoutEvaluation(scene, [0, 1], [0]).final(render, TimeBudget(None))
+    assert sizes == [64, 64] and scores["views"] == 2 and "evaluation_downscale" not in scores

@@ -267,8 +267,13 @@ class HeldoutEvaluation:
         Where even one view at full size would not fit (a view's measured cost is more than the
         time left), the views are scored at a half, a quarter ... of their size, down to
         :data:`SMALLEST_FINAL_SIDE` pixels, and ``evaluation_downscale`` in the scores says by how much.
+        A run stopped before any evaluation has no measured cost: under a finite budget one view is
+        first rendered at the smallest size and timed (:meth:`_probe`), so that a first full-size
+        view of an untrained field (minutes on a CPU) cannot overrun ``--max-time``.
         """
         until = budget.deadline - WRITING_SECONDS
+        if self.seconds_per_view is None and math.isfinite(until) and len(self.heldout):
+            self.seconds_per_view = self._probe(render)
         factor = self._downscale_to_fit(until - time.perf_counter())
         scene = self.scene.downscaled(factor)
         scores, renders = self._scored(render, self.heldout, True, until=until, progress=progress, scene=scene)
@@ -277,6 +282,21 @@ class HeldoutEvaluation:
     def final_seconds(self) -> float | None:
         """The final evaluation's estimated seconds, from the views rendered so far (None before any)."""
         return None if self.seconds_per_view is None else self.seconds_per_view * len(self.heldout)
+
+    def _probe(self, render: Renderer) -> float:
+        """A full-size view's seconds, estimated from one held-out view rendered at the smallest
+        final size and scaled by the pixels (a render's cost is in proportion to its rays; the small
+        render's fixed costs make this an overestimate, which errs towards fitting the budget)."""
+        side = min(int(self.scene.cameras.width.min()), int(self.scene.cameras.height.min()))
+        factor = 1
+        while side // (2 * factor) >= SMALLEST_FINAL_SIDE:
+            factor *= 2
+        camera = self.scene.cameras[[int(self.heldout[0])]]
+        small = camera.scaled(factor) if factor > 1 else camera
+        started = time.perf_counter()
+        render(small)
+        full_pixels = int(camera.width[0]) * int(camera.height[0])
+        return (time.perf_counter() - started) * full_pixels / (int(small.width[0]) * int(small.height[0]))
 
     def _downscale_to_fit(self, seconds: float) -> int:
         """The power of two by which to shrink the views so that one renders in ``seconds`` (its cost ~ its pixels)."""
