@@ -52,7 +52,7 @@ def add_commands(commands: argparse._SubParsersAction) -> None:
     source.add_argument("--scene", type=Path, metavar="SCENE",
                         help="a scene whose frames carry depth (scene from-rgbd's output): each frame a scan from "
                         "its camera")
-    occupancy.add_argument("--origin", metavar="X,Y,Z", default="0,0,0",
+    occupancy.add_argument("--origin", metavar="X,Y,Z",
                            help="the sensor's position in each scan's own frame (default 0,0,0: a scan in its "
                            "sensor's frame, as a lidar's)")
     occupancy.add_argument("--voxel", type=float, required=True, metavar="S", help="cell side, in the scans' units")
@@ -164,13 +164,15 @@ def run_occupancy(args: argparse.Namespace) -> int:
             raise PointfieldError(f"{out}: an occupancy map is written as {', '.join(MAP_SUFFIXES)}")
     if len({o.resolve() for o in args.out}) != len(args.out):
         raise PointfieldError("cloud occupancy: an --out is given twice")
-    origin = parse_point(args.origin, "--origin")
+    origin = parse_point(args.origin or "0,0,0", "--origin")
     notes = []
     if args.scene is not None:
         from pointfield.scenes import read_scene
 
         if args.scans:
             raise PointfieldError("cloud occupancy: give SCANS or --scene, not both")
+        if args.origin is not None:
+            raise PointfieldError("cloud occupancy: --origin is for scans; a scene's frames are seen from its cameras")
         scans = scans_from_scene(read_scene(args.scene, missing_images="keep"), args.stride, args.depth_max)
         notes.append(f"{len(scans)} depth frames, every {args.stride}th pixel, each seen from its camera")
     else:
