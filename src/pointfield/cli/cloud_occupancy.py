@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 
+from pointfield.cli.cloud_align import matrix_rows_json
 from pointfield.errors import PointfieldError
 from pointfield.streaming.memory import DEFAULT_MEMORY, parse_memory
 
@@ -204,7 +204,7 @@ def run_occupancy(args: argparse.Namespace) -> int:
                 write_voxels(tmp, occupancy.to_grid("occupied"))
     summary = _summary(occupancy, scans, seconds, args.out, notes)
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(matrix_rows_json(summary))
         return 0
     for note in notes:
         print(f"  {note}")
@@ -234,9 +234,9 @@ def run_query(args: argparse.Namespace) -> int:
     state = occupancy.state(queries)
     distance = occupancy.distance_to_obstacle(queries)
     if args.json:
-        print(json.dumps({"map": str(args.map), "voxel": occupancy.size, "points": [
+        print(matrix_rows_json({"map": str(args.map), "voxel": occupancy.size, "points": [
             {"point": q.tolist(), "state": STATES[int(s)], "distance": None if math.isinf(d) else float(d)}
-            for q, s, d in zip(queries, state, distance)]}, indent=2))
+            for q, s, d in zip(queries, state, distance)]}))
         return 0
     for q, s, d in zip(queries, state, distance):
         print(f"{q[0]:g},{q[1]:g},{q[2]:g}: {STATES[int(s)]}, nearest obstacle "
