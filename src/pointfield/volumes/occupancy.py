@@ -236,10 +236,15 @@ def write_octomap(path: str | os.PathLike[str], occupancy: OccupancyMap) -> None
     """Write the map as an OctoMap binary tree (``.bt``), as ``OcTree::writeBinary`` does, atomically.
 
     OctoMap's binary format keeps each cell as occupied or free (no probability): after a header,
-    the tree depth first, two bytes per inner node giving each of its 8 children 2 bits -- 00
-    unknown, 01 occupied leaf, 10 free leaf, 11 inner node -- children 0..3 in the first byte,
-    4..7 in the second, child ``i`` at bits ``2i`` (low) and ``2i + 1``. Cells must lie within
-    2^15 of the origin (OctoMap's 16-level key space). The tree is written unpruned.
+    the tree depth first, two bytes per inner node giving each of its 8 children 2 bits -- 0
+    unknown, 1 (bit ``2i``) a free leaf, 2 (bit ``2i + 1``) an occupied leaf, 3 an inner node --
+    children 0..3 in the first byte, 4..7 in the second. Cells must lie within 2^15 of the origin
+    (OctoMap's 16-level key space). The tree is written unpruned.
+
+    Built level by level on the cells' Morton codes, without a walk: the inner nodes at depth ``d``
+    are the distinct codes shifted right by ``3 (16 - d)``, each child adds its 2 bits to its parent's
+    word, and depth-first order is the order of (code shifted back left, depth): a node comes before
+    its first child, which has the same shifted-back code, and its subtree before its next sibling.
     """
     cells = key_cells(occupancy.keys) + OCTOMAP_OFFSET
     if len(cells) and (cells.min() < 0 or cells.max() >= 1 << OCTOMAP_DEPTH):
@@ -248,37 +253,26 @@ def write_octomap(path: str | os.PathLike[str], occupancy: OccupancyMap) -> None
     code = _morton(cells)
     order = np.argsort(code)
     code, occupied = code[order], (occupancy.log_odds > 0)[order]
-    out = bytearray()
-    nodes = 1
-
-    def node(level: int, lo: int, hi: int) -> None:
-        """Write the node whose leaves are ``code[lo:hi]``, ``level`` levels below the root."""
-        nonlocal nodes
-        shift = 3 * (OCTOMAP_DEPTH - 1 - level)
-        child = (code[lo:hi] >> shift) & 7
-        bounds = np.searchsorted(child, np.arange(9)) + lo
-        bits = 0
-        inner = []
-        for i in range(8):
-            a, b = int(bounds[i]), int(bounds[i + 1])
-            if a == b:
-                continue
-            nodes += 1
-            if level == OCTOMAP_DEPTH - 1:
-                bits |= (0b10 if occupied[a] else 0b01) << (2 * i)  # bit 2i + 1 set: occupied; bit 2i: free
-            else:
-                bits |= 0b11 << (2 * i)
-                inner.append((a, b))
-        out.extend((bits & 0xFF, bits >> 8))
-        for a, b in inner:
-            node(level + 1, a, b)
-
+    positions, depths, words = [], [], []
+    nodes = 1 if len(code) else 0
+    children, kinds = code, np.where(occupied, 2, 1)  # the leaves, at depth 16
+    for depth in range(OCTOMAP_DEPTH - 1, -1, -1):  # inner nodes at this depth, from their children below
+        parents, parent_of = np.unique(children >> 3, return_inverse=True)
+        word = np.bincount(parent_of, weights=kinds << (2 * (children & 7)), minlength=len(parents))
+        positions.append(parents << (3 * (OCTOMAP_DEPTH - depth)))
+        depths.append(np.full(len(parents), depth))
+        words.append(word.astype(np.uint16))
+        nodes += len(children)
+        children, kinds = parents, np.full(len(parents), 3)
     if len(code):
-        node(0, 0, len(code))
-    header = (f"# Octomap OcTree binary file\n# written by pointfield\nid OcTree\nsize {nodes if len(code) else 0}\n"
+        positions, depths, words = (np.concatenate(a) for a in (positions, depths, words))
+        body = words[np.lexsort((depths, positions))].astype("<u2").tobytes()
+    else:
+        body = b""
+    header = (f"# Octomap OcTree binary file\n# written by pointfield\nid OcTree\nsize {nodes}\n"
               f"res {occupancy.size!r}\ndata\n").encode("ascii")
     with atomic_path(Path(path)) as tmp:
-        tmp.write_bytes(header + bytes(out))
+        tmp.write_bytes(header + body)
 
 
 OCTOMAP_MAGIC = b"# Octomap OcTree binary file"
