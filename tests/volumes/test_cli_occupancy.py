@@ -129,6 +129,27 @@ def test_query_answers_free_occupied_unknown_and_the_distance_to_the_nearest_obs
     assert capsys.readouterr().out.startswith("2,2,1.5: free, nearest obstacle 1.4")
 
 
+def test_a_ray_past_max_range_frees_space_up_to_the_range_and_marks_no_hit(tmp_path):
+    scan = tmp_path / "rays.ply"
+    pointfield.write(scan, pointfield.PointCloud(np.array([[5.05, 0.05, 0.05], [0.05, 1.05, 0.05]], np.float32)))
+    out = tmp_path / "rays.bt"
+    assert main(["cloud", "occupancy", str(scan), "--voxel", str(VOXEL), "--max-range", "2", "--out", str(out)]) == 0
+    state = read_octomap(out).state(np.array([[1.95, 0.05, 0.05], [2.25, 0.05, 0.05], [5.05, 0.05, 0.05],
+                                              [0.05, 1.05, 0.05]]))
+    assert state.tolist() == [0, -1, -1, 1]  # free to 2, unknown past it and at the far point; the near one a hit
+
+
+def test_query_points_from_a_file(tmp_path, capsys):
+    files, poses = scan_files(tmp_path)
+    bt = tmp_path / "room.bt"
+    assert main(["cloud", "occupancy", "--poses", str(poses), "--voxel", str(VOXEL), "--out", str(bt)]) == 0
+    queries = tmp_path / "queries.xyz"
+    np.savetxt(queries, [[2.0, 2.0, 1.5], [1.0, 1.0, 1.0], [9.0, 9.0, 9.0]])
+    capsys.readouterr()
+    assert main(["cloud", "occupancy-query", str(bt), "--points-file", str(queries), "--json"]) == 0
+    assert [a["state"] for a in json.loads(capsys.readouterr().out)["points"]] == ["free", "free", "unknown"]
+
+
 def one_line_error(capsys, argv: list[str], *expected: str) -> None:
     assert main(argv) == 1
     error = capsys.readouterr().err
