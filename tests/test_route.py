@@ -246,6 +246,35 @@ def test_a_scan_for_a_robot_becomes_voxels_whose_python_runs(shared_data, tmp_pa
     assert f"pointfield cloud voxelize {shared_data / 'kitti/mmdet3d_demo/000008.bin'}" in answer.commands[1]
 
 
+def test_a_lidar_sweep_for_a_robot_gets_an_occupancy_command_that_runs(tmp_path, monkeypatch, capsys):
+    from pointfield.volumes.occupancy import read_octomap
+
+    # A sweep from the sensor at the origin to the walls of a box 4 m around it, as a KITTI .bin holds it.
+    direction = np.random.default_rng(0).normal(size=(3000, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    points = direction * (3.975 / np.abs(direction).max(axis=1))[:, None]
+    sweep = tmp_path / "sweep.bin"
+    np.concatenate([points, np.zeros((len(points), 1))], axis=1).astype(np.float32).tofile(sweep)
+    answer = route(sweep, task="a robot's collision map")
+    command = next(c for c in answer.commands if c.startswith("pointfield cloud occupancy"))
+    monkeypatch.chdir(tmp_path)
+    assert main(shlex.split(command)[1:]) == 0  # as printed
+    occupancy = read_octomap(tmp_path / "sweep.bt")
+    # Halfway along a ray: free; where it ended: occupied; past the wall: unknown.
+    assert occupancy.state(np.array([points[0] / 2, points[0], points[0] * 1.5])).tolist() == [0, 1, -1]
+
+
+def test_several_scans_for_a_robot_are_aligned_then_mapped_from_the_poses(shared_data):
+    scans = [shared_data / "registration/pcl_bun0.pcd", shared_data / "registration/pcl_bun4.pcd"]
+    answer = route(scans, task="collision")
+    assert answer.representation == "voxels"
+    assert answer.commands[0].startswith("pointfield cloud align") and "--out clouds.ply" in answer.commands[0]
+    assert "cloud occupancy --poses clouds.poses.json" in answer.commands[1]  # the file align writes beside clouds.ply
+    parser = build_parser()
+    for command in answer.commands:
+        parser.parse_args(shlex.split(command)[1:])
+
+
 def test_a_scan_for_a_mesh_gets_python_that_writes_it_with_normals(shared_data, tmp_path, monkeypatch):
     answer = route(shared_data / "kitti/semantickitti_seq00/000000.bin", task="mesh")
     assert answer.representation == "mesh"

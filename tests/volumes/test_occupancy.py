@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pointfield.volumes.occupancy import OccupancyMap, traverse, write_octomap
+from pointfield.volumes.occupancy import CLAMP, OccupancyMap, read_octomap, traverse, write_octomap
 
 ROOM = (np.array([0.05, 0.05, 0.05]), np.array([3.95, 3.95, 2.95]))
 """Walls in the middle of 0.1 cells, so that no wall lies on a cell face."""
@@ -104,3 +104,36 @@ def test_a_cell_hit_or_missed_scan_after_scan_saturates_at_octomaps_clamping_thr
     # OctoMap's AbstractOccupancyOcTree: clamping thresholds 0.971 and 0.1192, not 0.97 and 0.12.
     assert hit and probability.max() == pytest.approx(0.971, abs=1e-6)
     assert probability.min() == pytest.approx(0.1192, abs=1e-6)
+
+
+def test_rays_traversed_in_small_batches_give_the_same_map():
+    whole, batched = OccupancyMap(0.1), OccupancyMap(0.1)
+    for origin, seed in SCANS:
+        whole.insert_scan(room_scan(origin, seed=seed), origin)
+        batched.insert_scan(room_scan(origin, seed=seed), origin, batch_cells=5000)  # about 60 batches a scan
+    assert np.array_equal(whole.keys, batched.keys) and np.array_equal(whole.log_odds, batched.log_odds)
+
+
+def test_our_bt_reads_back_cell_for_cell(tmp_path):
+    ours = mapped()
+    write_octomap(tmp_path / "room.bt", ours)
+    back = read_octomap(tmp_path / "room.bt")
+    assert back.size == 0.1 and np.array_equal(back.keys, ours.keys)
+    assert np.array_equal(back.log_odds > 0, ours.log_odds > 0)
+    assert set(np.unique(back.log_odds)) <= {np.float32(CLAMP[0]), np.float32(CLAMP[1])}  # as OctoMap's reader sets
+
+
+def test_octomaps_own_pruned_bt_reads_as_octomap_sees_it(tmp_path):
+    octomap = pytest.importorskip("pyoctomap")
+    tree = octomap.OcTree(0.1)
+    for origin, seed in SCANS:
+        tree.insertPointCloud(room_scan(origin, seed=seed), origin)
+    tree.writeBinary(str(tmp_path / "theirs.bt"))  # pruned: eight equal children stored as their parent
+    ours = mapped()
+    write_octomap(tmp_path / "ours.bt", ours)  # unpruned
+    assert (tmp_path / "theirs.bt").stat().st_size < (tmp_path / "ours.bt").stat().st_size / 2
+    theirs = read_octomap(tmp_path / "theirs.bt")
+    centres = theirs.to_grid("known").centres()
+    expected = np.array([-1 if (node := tree.search(c)) is None else int(tree.isNodeOccupied(node)) for c in centres])
+    assert np.array_equal(theirs.state(centres), expected)
+    assert len(theirs.keys) == len(ours.keys)

@@ -22,6 +22,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+import pointfield.cli.cloud_occupancy as cloud_occupancy
 from pointfield.cli import cloud_align, cloud_registration, cloud_segmentation, cloud_streaming, cloud_volumes
 from pointfield.errors import PointfieldError
 from pointfield.volumes.files import is_voxel_file
@@ -133,6 +134,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     cloud_align.add_commands(commands)
     cloud_segmentation.add_commands(commands)
     cloud_volumes.add_commands(commands)
+    cloud_occupancy.add_commands(commands)
 
 
 def read_options(path: Path, columns: int | None) -> dict[str, Any]:

@@ -70,6 +70,8 @@ MESH_FACES = 200_000
 
 VOXEL = 0.05
 """Voxel side of a collision map, in the file's units (5 cm for lidar and LAS, which are metres)."""
+MAX_RANGE = 30
+"""Metres a lidar ray is trusted to in an occupancy map (OctoMap's maxrange): farther, it frees space only."""
 
 LABEL_FIELDS = ("label", "labels", "classification", "class", "semantic", "scalar_label")
 """Per-point fields that hold segmentation labels, as scans name them (LAS: classification)."""
@@ -194,13 +196,17 @@ def _cloud(given: Input, task: str | None) -> Plan:
         return Plan(MESH, "A game engine wants triangles, and a surface through scanned points needs their normals "
                     "to know inside from outside", commands, python, notes)
     if task == "collision":
+        commands = [_pf("cloud", "info", source), _pf("cloud", "voxelize", source, f"{name}-voxels.npz", "--voxel",
+                                                      str(VOXEL))]
+        notes = [f"voxel side {VOXEL} in the file's units (metres for lidar and LAS): choose your robot's resolution"]
+        if details["format"] == "velodyne":  # a sweep in its sensor's frame: the rays start at the origin
+            commands.append(_pf("cloud", "occupancy", source, "--voxel", str(VOXEL), "--max-range", MAX_RANGE,
+                                "--out", f"{name}.bt"))
+            notes.append(f"cloud occupancy casts each point's ray from the sensor (at the scan's origin): free and "
+                         f"unknown space too, as OctoMap's .bt, within {MAX_RANGE} m")
         return Plan(VOXELS, "A planner asks whether a cell is free: an occupancy grid answers that in constant time, "
-                    "in memory bounded by the volume, not by how densely the sensor sampled it",
-                    [_pf("cloud", "info", source), _pf("cloud", "voxelize", source, f"{name}-voxels.npz", "--voxel",
-                                                       str(VOXEL))],
-                    _voxel_python(f"pointfield.read({source!r})", f"{name}-voxels.npz"),
-                    [(f"voxel side {VOXEL} in the file's units (metres for lidar and LAS): choose your robot's "
-                      "resolution")])
+                    "in memory bounded by the volume, not by how densely the sensor sampled it", commands,
+                    _voxel_python(f"pointfield.read({source!r})", f"{name}-voxels.npz"), notes)
     if task == "measure":
         return Plan(POINT_CLOUD, "Scanned points are metric and explicit: measure on them directly, with no model in "
                     "between to smooth the geometry (LAS keeps float64 coordinates)", look,
@@ -301,6 +307,15 @@ def _clouds(given: Input, task: str | None) -> Plan:
                     "labels",
                     [_pf(task, "train", "DATA", "--out", f"runs/{task}"), _predict(task, f"runs/{task}", *files)],
                     notes=["DATA: labelled clouds (classify: one subfolder per class; segment: per-point labels)"])
+    if task == "collision" and folder is None and len(files) >= 2:
+        return Plan(VOXELS, "A planner asks whether a cell is free: align the scans, then cast each point's ray from "
+                    "its scan's sensor through the aligned frame (OctoMap's occupied, free and unknown)",
+                    [_pf("cloud", "align", *files, "--out", f"{name}.ply"),
+                     _pf("cloud", "occupancy", "--poses", f"{name}.poses.json", "--voxel", str(VOXEL),
+                         "--out", f"{name}.bt", "--out", f"{name}-occupied.npz"),
+                     _pf("cloud", "occupancy-query", f"{name}.bt", "--points", "X,Y,Z")],
+                    notes=[(f"each scan's sensor at its own origin (a lidar's frame; --origin X,Y,Z otherwise); "
+                            f"voxel side {VOXEL} in the scans' units"), "X,Y,Z: a point a planner asks about"])
     if folder is not None and details["first"] is None:
         raise PointfieldError(f"{folder}: ModelNet's HDF5 files are training data for classify; --task {task} "
                               f"needs clouds or meshes")

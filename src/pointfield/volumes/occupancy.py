@@ -15,7 +15,8 @@ ray longer than ``max_range`` marks free space up to that range and no hit (Octo
 
 Cells are ``floor(p / size)`` on a lattice through the world origin, as in OctoMap (within
 ``2^20`` cells of it along each axis). The map is sparse: sorted cell keys and their log-odds.
-:func:`write_octomap` writes it as OctoMap's ``.bt``, which OctoMap's tools and pyoctomap read.
+:func:`write_octomap` writes it as OctoMap's ``.bt``, which OctoMap's tools and pyoctomap read;
+:func:`read_octomap` reads a ``.bt`` back (OctoMap's own, pruned or not).
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from pointfield.atomic import atomic_path
-from pointfield.errors import PointfieldError
-from pointfield.volumes.voxels import VoxelGrid
+from pointfield.errors import FormatError, PointfieldError
+from pointfield.volumes.voxels import VoxelGrid, human_bytes
 
 
 def logit(p: float) -> float:
@@ -86,6 +87,56 @@ def traverse(start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return np.concatenate(rays), np.concatenate(cells)
 
 
+BATCH_CELLS = 1 << 21
+"""Cells visited per batch of rays in :meth:`OccupancyMap.insert_scan`: about 64 bytes each while traversed."""
+BYTES_PER_CELL = 48
+"""What a known cell of the map costs at the peak of an update: its key and log-odds, the merged copies of
+:meth:`OccupancyMap._update` and the scan's unique keys (:func:`occupancy_bytes`)."""
+
+
+def ray_batches(start: np.ndarray, ends: np.ndarray, batch_cells: int) -> list[np.ndarray]:
+    """``ends`` ``(R, 3)`` (voxel units) cut into consecutive batches whose rays from ``start`` ``(3,)`` visit
+    about ``batch_cells`` cells together (``|end_cell - start_cell|_1 + 1`` each; a batch holds at least one ray)."""
+    lengths = np.abs(np.floor(ends) - np.floor(start)).sum(axis=1) + 1
+    batch = np.floor_divide(np.cumsum(lengths) - lengths, max(int(batch_cells), 1)).astype(np.int64)
+    cuts = np.flatnonzero(np.diff(batch)) + 1
+    return np.split(ends, cuts) if len(ends) else []
+
+
+def occupancy_bytes(scans: list[tuple[np.ndarray, np.ndarray]], size: float, max_range: float | None = None) -> int:
+    """An upper bound on the memory a map of cells of ``size`` built from ``scans`` takes at its peak.
+
+    ``scans`` ``[(points (N, 3), origin (3,)), ...]``. The cells a map can know are the cells its rays
+    visit, and no more than those of the box around the origins and ray ends; each costs
+    :data:`BYTES_PER_CELL`, and a batch of rays :data:`BATCH_CELLS` times 64 bytes more.
+    """
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    visited = 0.0
+    for points, origin in scans:
+        ends = _ray_ends(np.asarray(points, np.float64).reshape(-1, 3), np.asarray(origin, np.float64), max_range)[0]
+        if not len(ends):
+            continue
+        cells = np.floor(ends / size)
+        start = np.floor(np.asarray(origin, np.float64) / size)
+        visited += float((np.abs(cells - start).sum(axis=1) + 1).sum())
+        low = np.minimum(low, np.minimum(cells.min(axis=0), start))
+        high = np.maximum(high, np.maximum(cells.max(axis=0), start))
+    box = float(np.prod(high - low + 1)) if visited else 0.0
+    return int(min(box, visited) * BYTES_PER_CELL + min(visited, BATCH_CELLS) * 64)
+
+
+def _ray_ends(points: np.ndarray, origin: np.ndarray, max_range: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(ends (N, 3), hit (N,))``: the finite points, those farther than ``max_range`` from ``origin`` moved
+    back to that range (OctoMap's rule: free up to there, no hit)."""
+    points = points[np.isfinite(points).all(axis=1)]
+    if max_range is None:
+        return points, np.ones(len(points), bool)
+    offset = points - origin
+    length = np.linalg.norm(offset, axis=1)
+    hit = length <= max_range
+    return np.where(hit[:, None], points, origin + offset * (max_range / np.maximum(length, 1e-300))[:, None]), hit
+
+
 @dataclass
 class OccupancyMap:
     """A sparse probabilistic occupancy map of cubes of side ``size`` (module docstring)."""
@@ -99,23 +150,22 @@ class OccupancyMap:
         if not self.size > 0:
             raise PointfieldError(f"the voxel size must be positive, got {self.size}")
 
-    def insert_scan(self, points: np.ndarray, origin: np.ndarray, max_range: float | None = None) -> None:
-        """Update the map with the rays from ``origin`` ``(3,)`` to each of ``points`` ``(N, 3)`` (world units)."""
-        points = np.asarray(points, np.float64).reshape(-1, 3)
-        points = points[np.isfinite(points).all(axis=1)]
+    def insert_scan(self, points: np.ndarray, origin: np.ndarray, max_range: float | None = None,
+                    batch_cells: int = BATCH_CELLS) -> None:
+        """Update the map with the rays from ``origin`` ``(3,)`` to each of ``points`` ``(N, 3)`` (world units).
+
+        The rays are traversed in batches of about ``batch_cells`` visited cells (each batch's cells
+        reduced to unique keys before the next), so that a scan's working memory is bounded by its
+        batch and the cells it sees, not by the sum of its rays' lengths; the map does not depend on it.
+        """
         origin = np.asarray(origin, np.float64).reshape(3)
-        ends = points
-        hit = np.ones(len(points), bool)
-        if max_range is not None:
-            offset = points - origin
-            length = np.linalg.norm(offset, axis=1)
-            hit = length <= max_range
-            ends = np.where(hit[:, None], points, origin + offset * (max_range / np.maximum(length, 1e-300))[:, None])
-        start = np.broadcast_to(origin / self.size, ends.shape)
-        _, passed = traverse(start, ends / self.size)
+        ends, hit = _ray_ends(np.asarray(points, np.float64).reshape(-1, 3), origin, max_range)
+        start = origin / self.size
+        passed = [np.unique(cell_keys(traverse(np.broadcast_to(start, (len(part), 3)), part)[1]))
+                  for part in ray_batches(start, ends / self.size, batch_cells)]
         occupied = np.unique(cell_keys(np.floor(ends[hit] / self.size).astype(np.int64)))
         ends_free = cell_keys(np.floor(ends[~hit] / self.size).astype(np.int64))  # cut at max_range: free to there
-        free = np.setdiff1d(np.unique(np.concatenate([cell_keys(passed), ends_free])), occupied, assume_unique=True)
+        free = np.setdiff1d(np.unique(np.concatenate([*passed, ends_free])), occupied, assume_unique=True)
         self._update(free, MISS)
         self._update(occupied, HIT)
         self._obstacles = None
@@ -186,10 +236,15 @@ def write_octomap(path: str | os.PathLike[str], occupancy: OccupancyMap) -> None
     """Write the map as an OctoMap binary tree (``.bt``), as ``OcTree::writeBinary`` does, atomically.
 
     OctoMap's binary format keeps each cell as occupied or free (no probability): after a header,
-    the tree depth first, two bytes per inner node giving each of its 8 children 2 bits -- 00
-    unknown, 01 occupied leaf, 10 free leaf, 11 inner node -- children 0..3 in the first byte,
-    4..7 in the second, child ``i`` at bits ``2i`` (low) and ``2i + 1``. Cells must lie within
-    2^15 of the origin (OctoMap's 16-level key space). The tree is written unpruned.
+    the tree depth first, two bytes per inner node giving each of its 8 children 2 bits -- 0
+    unknown, 1 (bit ``2i``) a free leaf, 2 (bit ``2i + 1``) an occupied leaf, 3 an inner node --
+    children 0..3 in the first byte, 4..7 in the second. Cells must lie within 2^15 of the origin
+    (OctoMap's 16-level key space). The tree is written unpruned.
+
+    Built level by level on the cells' Morton codes, without a walk: the inner nodes at depth ``d``
+    are the distinct codes shifted right by ``3 (16 - d)``, each child adds its 2 bits to its parent's
+    word, and depth-first order is the order of (code shifted back left, depth): a node comes before
+    its first child, which has the same shifted-back code, and its subtree before its next sibling.
     """
     cells = key_cells(occupancy.keys) + OCTOMAP_OFFSET
     if len(cells) and (cells.min() < 0 or cells.max() >= 1 << OCTOMAP_DEPTH):
@@ -198,34 +253,117 @@ def write_octomap(path: str | os.PathLike[str], occupancy: OccupancyMap) -> None
     code = _morton(cells)
     order = np.argsort(code)
     code, occupied = code[order], (occupancy.log_odds > 0)[order]
-    out = bytearray()
-    nodes = 1
-
-    def node(level: int, lo: int, hi: int) -> None:
-        """Write the node whose leaves are ``code[lo:hi]``, ``level`` levels below the root."""
-        nonlocal nodes
-        shift = 3 * (OCTOMAP_DEPTH - 1 - level)
-        child = (code[lo:hi] >> shift) & 7
-        bounds = np.searchsorted(child, np.arange(9)) + lo
-        bits = 0
-        inner = []
-        for i in range(8):
-            a, b = int(bounds[i]), int(bounds[i + 1])
-            if a == b:
-                continue
-            nodes += 1
-            if level == OCTOMAP_DEPTH - 1:
-                bits |= (0b10 if occupied[a] else 0b01) << (2 * i)  # bit 2i + 1 set: occupied; bit 2i: free
-            else:
-                bits |= 0b11 << (2 * i)
-                inner.append((a, b))
-        out.extend((bits & 0xFF, bits >> 8))
-        for a, b in inner:
-            node(level + 1, a, b)
-
+    positions, depths, words = [], [], []
+    nodes = 1 if len(code) else 0
+    children, kinds = code, np.where(occupied, 2, 1)  # the leaves, at depth 16
+    for depth in range(OCTOMAP_DEPTH - 1, -1, -1):  # inner nodes at this depth, from their children below
+        parents, parent_of = np.unique(children >> 3, return_inverse=True)
+        word = np.bincount(parent_of, weights=kinds << (2 * (children & 7)), minlength=len(parents))
+        positions.append(parents << (3 * (OCTOMAP_DEPTH - depth)))
+        depths.append(np.full(len(parents), depth))
+        words.append(word.astype(np.uint16))
+        nodes += len(children)
+        children, kinds = parents, np.full(len(parents), 3)
     if len(code):
-        node(0, 0, len(code))
-    header = (f"# Octomap OcTree binary file\n# written by pointfield\nid OcTree\nsize {nodes if len(code) else 0}\n"
+        positions, depths, words = (np.concatenate(a) for a in (positions, depths, words))
+        body = words[np.lexsort((depths, positions))].astype("<u2").tobytes()
+    else:
+        body = b""
+    header = (f"# Octomap OcTree binary file\n# written by pointfield\nid OcTree\nsize {nodes}\n"
               f"res {occupancy.size!r}\ndata\n").encode("ascii")
     with atomic_path(Path(path)) as tmp:
-        tmp.write_bytes(header + bytes(out))
+        tmp.write_bytes(header + body)
+
+
+OCTOMAP_MAGIC = b"# Octomap OcTree binary file"
+MAX_BT_HEADER = 4096
+READ_BYTES_PER_CELL = 96
+"""Bytes a cell costs while a ``.bt``'s leaves are expanded into cells: its leaf index, offsets, key, order."""
+
+
+def read_octomap(path: str | os.PathLike[str], max_bytes: int | None = None) -> OccupancyMap:
+    """Read an OctoMap binary tree (``.bt``, as ``OcTree::readBinary`` does) into an :class:`OccupancyMap`.
+
+    The format is :func:`write_octomap`'s. As OctoMap's reader does, an occupied leaf gets the upper
+    clamping log-odds and a free one the lower (the file keeps no probabilities). A leaf above the
+    last level (OctoMap prunes eight equal children into their parent) stands for all the cells
+    below it; their count is checked against ``max_bytes`` (``READ_BYTES_PER_CELL`` each) before they
+    are made. A header other than OctoMap's, a tree cut short, or a node count other than the
+    header's ``size`` raise :class:`~pointfield.errors.FormatError` naming the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    data = path.read_bytes()
+    if not data.startswith(OCTOMAP_MAGIC):
+        raise FormatError(path, f"not an OctoMap binary tree: expected {OCTOMAP_MAGIC.decode()!r} on the first line")
+    header: dict[str, str] = {}
+    at = 0
+    while True:
+        end = data.find(b"\n", at, MAX_BT_HEADER)
+        if end < 0:
+            raise FormatError(path, f"the header has no 'data' line in its first {MAX_BT_HEADER} bytes")
+        line = data[at:end].decode("ascii", "replace").strip()
+        at = end + 1
+        if line == "data":
+            break
+        if line and not line.startswith("#"):
+            name, _, value = line.partition(" ")
+            header[name] = value.strip()
+    if header.get("id", "OcTree") != "OcTree":
+        raise FormatError(path, f"holds an OctoMap {header['id']!r}; only OcTree (.bt) is read")
+    try:
+        size, resolution = int(header["size"]), float(header["res"])
+    except (KeyError, ValueError):
+        raise FormatError(path, "the header needs numeric 'size' and 'res' lines") from None
+    if not (resolution > 0 and np.isfinite(resolution)) or size < 0:
+        raise FormatError(path, f"the header's 'res' must be positive and 'size' not negative, got {resolution}, {size}")
+    occupancy = OccupancyMap(resolution)
+    if size == 0:
+        return occupancy
+    leaves: list[tuple[int, int, int, int, bool]] = []  # (x, y, z) key prefix, depth, occupied
+    nodes, cells = 1, 0
+    stack = [(0, 0, 0, 0)]  # the nodes with children still to read, in file order: key prefix and depth
+    while stack:
+        x, y, z, depth = stack.pop()
+        if at + 2 > len(data):
+            raise FormatError(path, f"the tree is cut short at byte {at}: {nodes:,} of the header's {size:,} "
+                              "nodes read (a truncated file?)")
+        bits = data[at] | data[at + 1] << 8
+        at += 2
+        inner = []
+        bit = OCTOMAP_DEPTH - 1 - depth  # the key bit this node's children differ in
+        for child in range(8):
+            kind = (bits >> (2 * child)) & 3
+            if kind == 0:
+                continue
+            nodes += 1
+            key = (x | (child & 1) << bit, y | (child >> 1 & 1) << bit, z | (child >> 2 & 1) << bit, depth + 1)
+            if kind == 3:
+                if depth + 1 == OCTOMAP_DEPTH:
+                    raise FormatError(path, f"a node at byte {at - 2} has children below OctoMap's {OCTOMAP_DEPTH} "
+                                      "levels")
+                inner.append(key)
+            else:
+                leaves.append((*key, kind == 2))
+                cells += 8 ** (OCTOMAP_DEPTH - depth - 1)
+        stack.extend(reversed(inner))  # depth first, children in order 0..7
+        if max_bytes is not None and cells * READ_BYTES_PER_CELL > max_bytes:
+            raise FormatError(path, f"its leaves cover at least {cells:,} cells of {resolution:g}, "
+                              f"{human_bytes(cells * READ_BYTES_PER_CELL)} to read, more than the "
+                              f"{human_bytes(max_bytes)} allowed (give more --memory)")
+    if nodes != size:
+        raise FormatError(path, f"the tree has {nodes:,} nodes but the header says {size:,}")
+    table = np.asarray(leaves, np.int64).reshape(-1, 5)
+    span = 1 << (OCTOMAP_DEPTH - table[:, 3])  # cells per axis under each leaf
+    counts = span**3
+    owner = np.repeat(np.arange(len(table)), counts)
+    first = np.cumsum(counts) - counts
+    local = np.arange(int(counts.sum()), dtype=np.int64) - first[owner]
+    side = span[owner]
+    offset = np.stack([local % side, local // side % side, local // (side * side)], axis=1)
+    keys = cell_keys(table[owner, :3] + offset - OCTOMAP_OFFSET)
+    order = np.argsort(keys)
+    occupancy.keys = keys[order]
+    occupancy.log_odds = np.where(table[owner, 4].astype(bool), CLAMP[1], CLAMP[0]).astype(np.float32)[order]
+    return occupancy
