@@ -21,12 +21,11 @@ demo: $(BIN)/.installed
 # Lint and the API reference first, so that a new ruff finding or a broken reference fails CI.
 # One worker per core (pytest-xdist), each folder's tests on one worker: tests/conftest.py.
 test: lint docs $(BIN)/.chromium
-	$(BIN)/python -m pytest -q -n auto
+	$(BIN)/python -m pytest -q -n auto --durations=15
 
-# The README's and the training guides' commands in order (tests/test_guides.py), which `make test`
-# leaves out: they train, render and export models for over 20 minutes on two cores.
+# The README's and the guides' commands in the order written (tests/guides, also part of `make test`), alone.
 test-guides: $(BIN)/.installed
-	POINTFIELD_GUIDES=all $(BIN)/python -m pytest -q tests/test_guides.py
+	$(BIN)/python -m pytest -q -s tests/guides
 
 lint: $(BIN)/.installed
 	$(BIN)/ruff check src tests benchmarks docs

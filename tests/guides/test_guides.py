@@ -35,9 +35,9 @@ from __future__ import annotations
 
 import glob
 import json
-import os
 import re
 import shlex
+import time
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +47,7 @@ import pointfield
 from pointfield.cli import main
 from pointfield.clouds.cloud import PointCloud
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PAGES = ("README.md", "docs/loading.md", "docs/photos.md", "docs/geometry.md", "docs/streaming.md",
          "docs/route.md", "docs/cameras.md")
 
@@ -76,8 +76,10 @@ SHARED = {
 SHORT = {
     ("classify", "train"): {"--epochs": "1", "--points": "64", "--batch-size": "8"},
     ("segment", "train"): {"--epochs": "1", "--points": "64", "--batch-size": "8"},
-    ("nerf", "train"): {"--steps": "30", "--max-time": "5", "--holdout-every": "50", "--eval-every": "30"},
-    ("splat", "train"): {"--steps": "30", "--max-time": "5", "--holdout-every": "50", "--eval-every": "30"},
+    ("nerf", "train"): {"--steps": "30", "--max-time": "5", "--holdout-every": "50", "--eval-every": "30",
+                        "--downscale": "32"},
+    ("splat", "train"): {"--steps": "30", "--max-time": "5", "--holdout-every": "50", "--eval-every": "30",
+                         "--downscale": "32"},
     ("nerf", "exercise"): {"--epochs": "1"},
     ("nerf", "render"): {"--frames": "2"},
     ("splat", "render"): {"--frames": "2"},
@@ -89,20 +91,26 @@ SHORT = {
     ("scene", "make"): {"--views": "8", "--size": "16"},
     ("scene", "convert"): {"--downscale": "8"},
     ("scene", "from-images"): {"--max-size": "400"},
+    ("scene", "from-rgbd"): {"--frames": "10", "--voxel": "0.03"},
 }
 """Verb -> options set for the test (replacing the page's value, else appended), except those of
 :data:`ONLY_IF_GIVEN` and :data:`ONLY_WITHOUT_DATA`."""
-ONLY_IF_GIVEN = {("nerf", "export"): {"--points", "--faces"}, ("splat", "export"): {"--points", "--faces"}}
+ONLY_IF_GIVEN = {("nerf", "export"): {"--points", "--faces"}, ("splat", "export"): {"--points", "--faces"},
+                 ("nerf", "train"): {"--downscale"}, ("splat", "train"): {"--downscale"}}
 """An export's ``--points`` and ``--faces`` (the size of what it writes) are only replaced where the page
-gives them: a ``--mesh`` export takes no ``--points``. (A training's ``--points``, per cloud, is always set.)"""
+gives them: a ``--mesh`` export takes no ``--points``. (A training's ``--points``, per cloud, is always set.)
+A training's ``--downscale 8`` becomes 32 (lego's 25 x 25 pixels): a field trained for seconds renders
+every sample of every ray, so each later render and export costs in proportion to the pixels."""
 DENSITY = {"--threshold": "0.1"}
 """A field trained for seconds is thin: its density reaches a tenth, not instant-ngp's level (2.5 / the box side)."""
 ONLY_WITHOUT_DATA = {("classify", "train"): {"--shapes-per-class": "4"}, ("segment", "train"): {"--shapes-per-class": "4"}}
 """Set only when the training has no DATA folder: the built-in synthetic shapes (100 per class by
 default), made and trained on for ten minutes on one thread when this was not applied."""
 
+NOT_RUN_PROGRAMS = {"make": "the set-up itself (creates .venv and runs the suite)",
+                    "python": "a benchmark, the command a figure of the page was printed by (minutes long)"}
+"""Shell lines of another program than pointfield that are not run, with the reason."""
 NOT_RUN = {
-    "make": "the set-up itself (creates .venv and runs the suite)",
     "view": "serves a page until Ctrl-C; tests/viewer drive it in headless Chromium",
     "--view": "serves a page until Ctrl-C; tests/viewer/test_training_hook.py covers it",
     "from-video": "needs a video clip, and the test data has none",
@@ -125,6 +133,11 @@ def page_commands(page: str) -> list[str]:
 
 
 def skip_reason(argv: list[str]) -> str | None:
+    """Why a page's line is not run, or None. ``make`` skips the line ``make demo``, not ``pointfield
+    scene make``: words of :data:`NOT_RUN` are pointfield's, the programs of :data:`NOT_RUN_PROGRAMS` are others'."""
+    program = next((word for word in argv if "=" not in word), "")  # after any VAR=value
+    if program in NOT_RUN_PROGRAMS:
+        return NOT_RUN_PROGRAMS[program]
     for word, reason in NOT_RUN.items():
         if word == argv[0] or (argv[0] == "pointfield" and word in argv[1:3]) or word in argv:
             return reason
@@ -210,18 +223,10 @@ def eager(monkeypatch):
     monkeypatch.setattr(compiling, "_compiler_available_for", lambda device_type: False)
 
 
-TRAINING_PAGES = frozenset({"README.md", "docs/geometry.md", "docs/route.md"})
-"""Pages whose commands train, render and export models (route.md uses the README's runs): more
-than 20 minutes on one thread of an idle 2-core machine, twice what the whole of ``make test`` may
-take, so they run only with ``POINTFIELD_GUIDES=all`` (``make test-guides``)."""
-
-
 @pytest.mark.parametrize("page", PAGES)
 def test_the_pages_commands_run_in_the_order_written(page, work, eager, monkeypatch, capsys, one_torch_thread):
-    if page in TRAINING_PAGES and os.environ.get("POINTFIELD_GUIDES") != "all":
-        pytest.skip(f"{page} trains models for minutes: run with POINTFIELD_GUIDES=all (make test-guides)")
     monkeypatch.chdir(work)
-    ran, skipped = 0, []
+    ran, skipped, seconds = 0, [], []
     for line in page_commands(page):
         argv = shlex.split(line, comments=True)
         reason = skip_reason(argv)
@@ -232,10 +237,13 @@ def test_the_pages_commands_run_in_the_order_written(page, work, eager, monkeypa
         args = expanded(shortened(argv[1:]))
         if "--out" in args:
             Path(args[args.index("--out") + 1]).parent.mkdir(parents=True, exist_ok=True)
+        started = time.perf_counter()
         code = main(args)
+        seconds.append((time.perf_counter() - started, line.split("#")[0].strip()))
         err = capsys.readouterr().err
         assert code == 0, f"{page}: `{line}` (run as `pointfield {shlex.join(args)}`) exited {code}: {err[-1500:]}"
         ran += 1
     if not ran and not skipped:
         pytest.skip(f"{page} has no shell commands")  # loading.md: Python only, run by test_docs_loading.py
-    print(f"{page}: {ran} commands run; not run: {skipped}")
+    slowest = "; ".join(f"{t:.1f} s {line}" for t, line in sorted(seconds, reverse=True)[:5])
+    print(f"{page}: {ran} commands run in {sum(t for t, _ in seconds):.0f} s (slowest: {slowest}); not run: {skipped}")
