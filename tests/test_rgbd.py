@@ -164,7 +164,8 @@ def test_the_living_room_is_posed_within_2_cm_of_open3ds_reconstruction(shared_d
 
 
 def loop_poses(count: int) -> np.ndarray:
-    """``count + 1`` camera-to-world poses round a 1 m circle facing the boxes, yawing +-30 degrees: the last is the first."""
+    """``count + 1`` camera-to-world poses round a 1 m circle facing the boxes, yawing +-30 degrees; the last is
+    the first."""
     angles = 2 * np.pi * np.arange(count + 1) / count
     poses = np.repeat(np.eye(4)[None], count + 1, axis=0)
     poses[:, :3, :3] = Rotation.from_euler("yx", np.stack([30 * np.sin(angles), 5 * np.sin(2 * angles)], 1),

@@ -99,11 +99,12 @@ def split_fragments(count: int, size: int) -> list[tuple[int, int]]:
 
 
 def fragment_cloud(points: list[np.ndarray], poses: np.ndarray, first: int, stop: int, voxel: float) -> np.ndarray:
-    """``(M, 3)`` the frames ``first .. stop - 1``'s camera-frame clouds in frame ``first``'s camera, one point per voxel."""
+    """``(M, 3)`` frames ``first .. stop - 1``'s camera-frame clouds in camera ``first``'s frame, one point per voxel."""
     from pointfield.registration.scan import Scan
 
     base = np.linalg.inv(poses[first])
-    moved = [p @ m[:3, :3].T + m[:3, 3] for p, m in ((points[f], base @ poses[f]) for f in range(first, stop)) if len(p)]
+    moved = [points[f] @ m[:3, :3].T + m[:3, 3] for f in range(first, stop) if len(points[f])
+             for m in (base @ poses[f],)]
     if not moved:
         return np.zeros((0, 3))
     return Scan(np.concatenate(moved)).downsample(voxel).points
@@ -111,7 +112,8 @@ def fragment_cloud(points: list[np.ndarray], poses: np.ndarray, first: int, stop
 
 def _register(source: np.ndarray, target: np.ndarray, guess: np.ndarray, voxel: float, allow_global: bool,
               min_fitness: float):
-    """``(result, how)``: fine from ``guess``; where that links too little and ``allow_global``, FPFH + RANSAC then fine.
+    """``(result, how)``: fine from ``guess``; where that links too little and ``allow_global``, FPFH +
+    RANSAC, then fine.
 
     The fine step is generalized ICP at two levels, the clouds thinned to ``2 voxel`` with partners
     within ``4 voxel`` (room for the odometry's drift), then as they are within ``voxel``: the
@@ -162,8 +164,8 @@ def fragment_poses(poses: np.ndarray, points: list[np.ndarray], fragment_size: i
     ranges = split_fragments(len(poses), fragment_size)
     start = np.stack([poses[first] for first, _ in ranges])
     clouds = [fragment_cloud(points, poses, first, stop, voxel) for first, stop in ranges]
-    notes = [f"{len(ranges)} fragments of {fragment_size} frames"
-             + (f" (the last {ranges[-1][1] - ranges[-1][0]})" if ranges[-1][1] - ranges[-1][0] != fragment_size else "")]
+    last = ranges[-1][1] - ranges[-1][0]
+    notes = [f"{len(ranges)} fragments of {fragment_size} frames" + (f" (the last {last})" if last != fragment_size else "")]
     if len(ranges) < 2:
         return FragmentPoses(poses.copy(), ranges, start, start.copy(), [], 0, notes)
     world = [c @ p[:3, :3].T + p[:3, 3] for c, p in zip(clouds, start)]

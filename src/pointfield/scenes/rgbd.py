@@ -298,7 +298,8 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     ``frames``: only the first so many. ``fragment_size``: a sequence of more than twice this many
     frames is cut into fragments of so many, registered pairwise and put through a pose graph
     (:func:`~pointfield.registration.fragments.fragment_poses`; 0: never); ``loop_closure``: with
-    fragments, register non-consecutive ones too (loop closures). ``fusion_threads``: torch threads while fusing on the CPU
+    fragments, register non-consecutive ones too (loop closures).
+    ``fusion_threads``: torch threads while fusing on the CPU
     (default 1; None leaves torch's setting): each frame is a few dozen elementwise passes over
     about a million voxels, too little to share -- 15 of the living room's frames fused in 6.8 s
     on one thread and 13.6 s on two of a 2-core machine shared with other jobs (docs/rgbd.md).
