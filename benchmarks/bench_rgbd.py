@@ -15,6 +15,15 @@ installed here: bench_tsdf) and its marching cubes, the mesh written as PLY. poi
 ``reconstruct_rgbd`` with its defaults (odometry: generalized ICP on depth clouds thinned to
 2 cm; fusion: voxel 1 cm, truncation 4 voxels, depth beyond 3 m dropped), which also writes the
 scene folder. Each is run ``--repeats`` times, interleaved.
+
+Fragments and loop closures (``--fragment-size``, ``--loop-closure``) are measured on poses alone
+(no fusion), on two sequences: the 60 frames as they are, and the 60 frames played forward then
+backward (``0 .. 59, 58 .. 0``, 119 frames), a camera that returns exactly to its first view, so
+that the end-to-start distance of a trajectory is its drift. Each is posed three ways --
+odometry alone, fragments of 20 frames without loop closures, and with them -- and the peers on
+the same frames are open3d's frame-to-frame hybrid odometry, and open3d's own pose-graph
+optimisation (``global_optimization``, Levenberg-Marquardt, the same options) over pointfield's
+fragment edges.
 """
 
 from __future__ import annotations
@@ -106,6 +115,98 @@ def odometry_alternatives(frames, camera) -> dict[str, tuple[np.ndarray, float]]
     return out
 
 
+def end_to_start(poses: np.ndarray) -> tuple[float, float]:
+    """``(metres, degrees)`` of the motion from the first camera to the last."""
+    from scipy.spatial.transform import Rotation
+
+    motion = np.linalg.inv(poses[0]) @ poses[-1]
+    return float(np.linalg.norm(motion[:3, 3])), float(np.degrees(Rotation.from_matrix(motion[:3, :3]).magnitude()))
+
+
+def open3d_odometry(frames, order: list[int]) -> np.ndarray:
+    """open3d's frame-to-frame hybrid RGB-D odometry over the frames in ``order`` (as ``run_open3d``)."""
+    import open3d as o3d
+
+    intrinsic = o3d.io.read_pinhole_camera_intrinsic(str(ROOM / "camera_primesense.json"))
+    rgbd = [o3d.geometry.RGBDImage.create_from_color_and_depth(o3d.io.read_image(str(c)), o3d.io.read_image(str(d)),
+                                                                depth_trunc=DEPTH_MAX, convert_rgb_to_intensity=True)
+            for c, d in zip(frames.colour, frames.depth)]
+    option = o3d.pipelines.odometry.OdometryOption(depth_diff_max=0.07, depth_max=DEPTH_MAX)
+    poses = [np.eye(4)]
+    for previous, current in zip(order, order[1:]):
+        _, motion, _ = o3d.pipelines.odometry.compute_rgbd_odometry(
+            rgbd[current], rgbd[previous], intrinsic, np.eye(4),
+            o3d.pipelines.odometry.RGBDOdometryJacobianFromHybridTerm(), option)
+        poses.append(poses[-1] @ motion)
+    return np.stack(poses)
+
+
+def open3d_pose_graph(odometry: np.ndarray, fragments, voxel: float) -> np.ndarray:
+    """Frame poses from open3d's ``global_optimization`` over the same fragment graph pointfield optimised."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    graph = reg.PoseGraph()
+    for pose in fragments.initial_fragment_poses:
+        graph.nodes.append(reg.PoseGraphNode(pose))
+    for pair in fragments.pairs:  # the same convention: P_target T = P_source
+        graph.edges.append(reg.PoseGraphEdge(pair.source, pair.target, pair.transformation, pair.information,
+                                             uncertain=pair.kind == "loop closure"))
+    option = reg.GlobalOptimizationOption(max_correspondence_distance=voxel, edge_prune_threshold=0.25,
+                                          preference_loop_closure=5.0, reference_node=0)
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        reg.global_optimization(graph, reg.GlobalOptimizationLevenbergMarquardt(),
+                                reg.GlobalOptimizationConvergenceCriteria(), option)
+    refined = np.empty_like(odometry)
+    for k, (first, stop) in enumerate(fragments.fragments):
+        refined[first:stop] = np.asarray(graph.nodes[k].pose) @ np.linalg.inv(fragments.initial_fragment_poses[k]) \
+            @ odometry[first:stop]
+    return refined
+
+
+def fragment_modes(reference: np.ndarray, fragment_size: int = 20, voxel: float = 0.02) -> tuple[list, dict]:
+    """Rows (and figures) of odometry alone, fragments, fragments + loop closures and the open3d peers, on
+    the 60 frames and on them played forward then backward."""
+    from pointfield.registration.fragments import fragment_poses
+    from pointfield.registration.odometry import rgbd_odometry
+    from pointfield.scenes.rgbd import read_depth, read_intrinsics
+
+    frames = read_rgbd_folder(ROOM)
+    camera = read_intrinsics(ROOM / "camera_primesense.json")
+    depths = [read_depth(p, camera, 1000.0, DEPTH_MAX) for p in frames.depth]
+    rows, figures = [], {}
+    count = len(depths)
+    for sequence, order in (("60 frames", list(range(count))),
+                            ("forward + backward", list(range(count)) + list(range(count - 2, -1, -1)))):
+        truth = reference[order]
+        started = time.perf_counter()
+        odometry = rgbd_odometry([depths[i] for i in order], camera, voxel=voxel)
+        seconds = time.perf_counter() - started
+        results = [("pointfield odometry alone", odometry.poses, seconds, "-", "-")]
+        for loops in (False, True):
+            started = time.perf_counter()
+            found = fragment_poses(odometry.poses, odometry.points, fragment_size, voxel=voxel, loop_closure=loops)
+            seconds = time.perf_counter() - started
+            edges = f"{found.loops_kept} / {found.loops_pruned}" if loops else "not tried"
+            name = "pointfield fragments" + (" + loop closures" if loops else "")
+            results.append((name, found.poses, seconds, len(found.fragments), edges))
+        started = time.perf_counter()
+        peer_graph = open3d_pose_graph(odometry.poses, found, voxel)
+        results.append(("open3d global_optimization, same edges", peer_graph, time.perf_counter() - started,
+                        len(found.fragments), "(pointfield's)"))
+        started = time.perf_counter()
+        peer = open3d_odometry(frames, order)
+        results.append(("open3d hybrid odometry alone", peer, time.perf_counter() - started, "-", "-"))
+        for name, poses, seconds, fragments, edges in results:
+            ate = absolute_trajectory_error(poses, truth)
+            distance, angle = end_to_start(poses)
+            drift = f"{100 * distance:.3f} cm, {angle:.3f} deg" if sequence != "60 frames" else "-"
+            rows.append([sequence, name, fragments, edges, f"{seconds:.1f}", f"{100 * ate:.3f}", drift])
+            figures[f"{sequence}: {name}"] = {"ate_m": ate, "end_to_start_m": distance, "end_to_start_deg": angle,
+                                              "seconds": seconds}
+    return rows, figures
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=1, help="timed runs per contender (default 1)")
@@ -163,6 +264,22 @@ def main() -> int:
     record.table(["frame-to-frame odometry", "seconds (reading included for pointfield's default)",
                   "ATE vs open3d's reconstruction (cm)"], odometry_rows,
                  title="Which odometry: the same 60 frames, each pair from the last motion")
+    fragment_rows, record.figures["fragments"] = fragment_modes(reference)
+    record.table(["sequence", "poses by", "fragments", "loop closures kept / pruned",
+                  "seconds (odometry or the fragment stage)", "ATE vs open3d's reconstruction (cm)",
+                  "end to start (the drift)"],
+                 fragment_rows, title="Fragments of 20 frames and loop closures (poses only, voxel 2 cm; the "
+                 "second sequence returns to its first view)")
+    loop = record.figures["fragments"]
+    record.verdict("fragments keep the 60 frames within 0.1 cm ATE of the odometry alone",
+                   loop["60 frames: pointfield fragments + loop closures"]["ate_m"]
+                   <= loop["60 frames: pointfield odometry alone"]["ate_m"] + 0.001,
+                   f"{100 * loop['60 frames: pointfield fragments + loop closures']['ate_m']:.3f} cm against "
+                   f"{100 * loop['60 frames: pointfield odometry alone']['ate_m']:.3f} cm")
+    closed = loop["forward + backward: pointfield fragments + loop closures"]["end_to_start_m"]
+    drifted = loop["forward + backward: pointfield odometry alone"]["end_to_start_m"]
+    record.verdict("loop closures bring the camera that returns nearer its start than the odometry alone",
+                   closed < drifted, f"{100 * closed:.3f} cm against {100 * drifted:.3f} cm")
     record.verdict("the trajectory is within 2 cm ATE of open3d's reconstruction",
                    errors["pointfield scene from-rgbd"] < 0.02, f"{100 * errors['pointfield scene from-rgbd']:.2f} cm")
     record.verdict("pointfield takes less time than open3d's odometry and fusion of the same frames", ours < peer,

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from pointfield.cli import main
 from pointfield.geometry.tsdf import TSDFVolume, allocation_stride
+from pointfield.registration.fragments import fragment_poses, split_fragments
 from pointfield.registration.odometry import Intrinsics, absolute_trajectory_error, rgbd_odometry
 from pointfield.scenes import read_scene
 from pointfield.scenes.cameras import Cameras
@@ -162,6 +163,70 @@ def test_the_living_room_is_posed_within_2_cm_of_open3ds_reconstruction(shared_d
     assert result.report["faces"] > 1000
 
 
+def loop_poses(count: int) -> np.ndarray:
+    """``count + 1`` camera-to-world poses round a 1 m circle facing the boxes, yawing +-30 degrees; the last is
+    the first."""
+    angles = 2 * np.pi * np.arange(count + 1) / count
+    poses = np.repeat(np.eye(4)[None], count + 1, axis=0)
+    poses[:, :3, :3] = Rotation.from_euler("yx", np.stack([30 * np.sin(angles), 5 * np.sin(2 * angles)], 1),
+                                           degrees=True).as_matrix()
+    poses[:, :3, 3] = np.stack([0.5 * np.sin(angles), 0.1 * np.sin(2 * angles), 0.5 * (1 - np.cos(angles)) - 1.0], 1)
+    return poses
+
+
+def end_to_start(poses: np.ndarray) -> float:
+    """Metres between the first and the last camera of a trajectory that returns to where it began."""
+    return float(np.linalg.norm(poses[-1, :3, 3] - poses[0, :3, 3]))
+
+
+def test_loop_closure_removes_the_drift_of_a_camera_that_comes_back(tmp_path):
+    truth = loop_poses(48)
+    noise = np.random.default_rng(0)
+    # 1 cm of depth noise: each step's error is small, but 48 of them add up.
+    depths = [render_depth(p) + noise.normal(0, 0.01, (CAMERA.height, CAMERA.width)) for p in truth]
+    odometry = rgbd_odometry(depths, CAMERA, voxel=0.05, stride=1)
+    chained = fragment_poses(odometry.poses, odometry.points, 8, voxel=0.05, loop_closure=False,
+                             global_registration=False)
+    closed = fragment_poses(odometry.poses, odometry.points, 8, voxel=0.05, global_registration=False)
+    assert end_to_start(odometry.poses) > 0.01  # the test means something: the odometry drifted
+    assert closed.loops_kept >= 3 and any(p.source == 0 and p.target == 5 and p.kept for p in closed.pairs)
+    assert end_to_start(closed.poses) < 0.5 * min(end_to_start(odometry.poses), end_to_start(chained.poses))
+    # and the loop is closed without bending the rest: the whole path is nearer the truth than the odometry's
+    assert absolute_trajectory_error(closed.poses, truth) < absolute_trajectory_error(odometry.poses, truth)
+
+
+def test_fragments_split_as_open3d_and_a_short_tail_joins_the_last():
+    assert split_fragments(60, 20) == [(0, 20), (20, 40), (40, 60)]
+    assert split_fragments(119, 20)[-1] == (100, 119)
+    assert split_fragments(65, 20) == [(0, 20), (20, 40), (40, 65)]
+
+
+def test_fragments_keep_the_living_room_within_half_a_centimetre_of_open3d(shared_data, tmp_path):
+    room = shared_data / "rgbd" / "livingroom1_micro"
+    result = reconstruct_rgbd(room, tmp_path / "room", intrinsics=room / "camera_primesense.json", frames=30,
+                              fragment_size=10, voxel=0.05, device="cpu", progress=False)
+    fragments = result.report["fragments"]
+    assert fragments["used"] and fragments["count"] == 3 and fragments["loops_kept"] == 1
+    reference = read_log_trajectory(room / "open3d_trajectory.log")[:30]
+    assert absolute_trajectory_error(result.poses, reference) < 0.005
+
+
+def test_from_rgbd_fragments_and_loop_closure_through_the_cli(sequence, tmp_path, capsys):
+    folder, truth = sequence
+    argv = ["scene", "from-rgbd", str(folder), "--voxel", "0.04", "--odometry-voxel", "0.05", "--device", "cpu",
+            "--fragment-size", "2"]
+    assert main([*argv, "--out", str(tmp_path / "closed")]) == 0
+    out = capsys.readouterr().out
+    assert "fragments: 4 of 2 frames" in out and "loop closures: " in out
+    report = json.loads((tmp_path / "closed" / "report.json").read_text())
+    assert report["fragments"]["loops_kept"] >= 1
+    assert absolute_trajectory_error(read_log_trajectory(tmp_path / "closed" / "trajectory.log"), truth) < 0.01
+    assert main([*argv, "--no-loop-closure", "--out", str(tmp_path / "chained")]) == 0
+    assert "loop closures not tried" in capsys.readouterr().out
+    assert main([*argv[:-2], "--out", str(tmp_path / "plain")]) == 0
+    assert "fragments: none (8 frames, not more than twice the fragment size 100)" in capsys.readouterr().out
+
+
 def _one_line_error(capsys, argv, *fragments):
     assert main([str(a) for a in argv]) == 1
     captured = capsys.readouterr()
@@ -213,6 +278,8 @@ def test_bad_options_are_one_line(capsys, sequence, tmp_path):
     _one_line_error(capsys, ["scene", "from-rgbd", folder, "--out", tmp_path / "o", "--frames", "0"], "--frames")
     _one_line_error(capsys, ["scene", "from-rgbd", folder, "--out", tmp_path / "o", "--fusion-threads", "-1"],
                     "--fusion-threads")
+    _one_line_error(capsys, ["scene", "from-rgbd", folder, "--out", tmp_path / "o", "--fragment-size", "-1"],
+                    "--fragment-size")
 
 
 def test_allocating_from_every_few_pixels_keeps_every_block_the_surface_passes_through(sequence):

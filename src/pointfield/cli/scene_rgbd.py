@@ -18,7 +18,8 @@ def add_commands(verbs: argparse._SubParsersAction) -> None:
         help="pose an RGB-D sequence by odometry, fuse it into a mesh, write a scene",
         description="Read an RGB-D sequence (depth/ beside image/ or color/, as Redwood and open3d's "
         "reconstruction system lay it out, or TUM's rgb.txt and depth.txt), pose it frame to frame "
-        "(generalized ICP on the depth), fuse it into a TSDF and write SCENE: mesh.ply, cloud.ply, "
+        "(generalized ICP on the depth), refine long sequences over fragments and a pose graph with loop "
+        "closures, fuse it into a TSDF and write SCENE: mesh.ply, cloud.ply, "
         "trajectory.txt (TUM), trajectory.log (open3d), transforms.json with the posed colour images and "
         "their depth (what `nerf train` and `splat train` read), report.json.",
     )
@@ -34,6 +35,13 @@ def add_commands(verbs: argparse._SubParsersAction) -> None:
     parser.add_argument("--odometry-voxel", type=float, default=0.02, metavar="V",
                         help="odometry clouds thinned to one point per V metres (default 0.02)")
     parser.add_argument("--frames", type=int, metavar="N", help="only the first N frames")
+    parser.add_argument("--fragment-size", type=int, default=100, metavar="N",
+                        help="a sequence of more than 2N frames is cut into fragments of N frames, registered "
+                        "pairwise and put through a pose graph, as open3d's reconstruction system (default 100, "
+                        "open3d's; 0: never)")
+    parser.add_argument("--loop-closure", action=argparse.BooleanOptionalAction, default=True,
+                        help="with fragments, register non-consecutive ones too (loop closures), so that a camera "
+                        "that comes back lands where it started (default on)")
     parser.add_argument("--device", help="where to fuse: cpu, cuda, mps (default: the best available)")
     parser.add_argument("--fusion-threads", type=int, default=1, metavar="N",
                         help="torch threads while fusing on the CPU (default 1: each frame's work is too small to "
@@ -49,7 +57,8 @@ def run_from_rgbd(args: argparse.Namespace) -> int:
 
     result = reconstruct_rgbd(args.folder, args.out, intrinsics=args.intrinsics, depth_scale=args.depth_scale,
                               depth_max=args.depth_max, voxel=args.voxel, odometry_voxel=args.odometry_voxel,
-                              frames=args.frames, overwrite=args.overwrite, device=args.device,
+                              frames=args.frames, fragment_size=args.fragment_size,
+                              loop_closure=args.loop_closure, overwrite=args.overwrite, device=args.device,
                               fusion_threads=None if args.fusion_threads == 0 else args.fusion_threads,
                               progress=args.progress)
     print(json.dumps(result.report, indent=2) if args.json else result.format())

@@ -15,12 +15,14 @@ One file per piece, as open3d's ``pipelines.registration`` names them:
 ``scan.py``                    :class:`Scan`, the arrays the above work on
 ``pose_graph.py``              :func:`optimize_pose_graph`: poses consistent over every edge, loop closures pruned
 ``multiway.py``                :func:`align`, many scans into one frame (open3d's multiway registration)
+``fragments.py``               :func:`fragment_poses`, RGB-D odometry refined over fragments and loop closures
 ``streamed.py``                scans read whole or thinned while streaming within ``--memory``; written moved
 =============================  ============================================================
 """
 
 from pointfield.registration.estimation import ColoredICP, GeneralizedICP, PointToPlane, PointToPoint, kabsch
 from pointfield.registration.fpfh import compute_fpfh
+from pointfield.registration.fragments import fragment_poses
 from pointfield.registration.global_registration import (
     DistanceChecker,
     EdgeLengthChecker,
@@ -53,6 +55,7 @@ __all__ = [
     "METHODS", "AlignResult", "AlignedPair", "PoseGraph", "PoseGraphEdge", "align", "optimize_pose_graph", "ColoredICP", "DistanceChecker", "EdgeLengthChecker", "GeneralizedICP", "HuberLoss",
     "ICPConvergenceCriteria", "L2Loss", "PointToPlane", "PointToPoint", "RANSACCriteria", "RegistrationResult",
     "Scan", "TukeyLoss", "aligned", "check_cloud", "check_transformation", "compute_fpfh", "default_voxel",
-    "evaluate", "feature_alignment", "information_matrix", "kabsch", "match_features", "multiscale_icp",
+    "evaluate", "feature_alignment", "fragment_poses", "information_matrix", "kabsch", "match_features",
+    "multiscale_icp",
     "ransac_on_matches", "register", "registration_icp", "registration_small_gicp",
 ]

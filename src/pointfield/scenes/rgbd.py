@@ -23,6 +23,11 @@ Intrinsics
 The pipeline (:func:`reconstruct_rgbd`)
     1. frame-to-frame odometry, generalized ICP on thinned depth clouds
        (:func:`pointfield.registration.odometry.rgbd_odometry`);
+    1b. on a sequence of more than twice ``fragment_size`` frames (default 100, open3d's), fragments
+       of that many frames registered pairwise -- consecutive ones and, with ``loop_closure``, any
+       two whose boxes meet -- and a pose graph over them that prunes the loop closures it
+       disagrees with (:func:`pointfield.registration.fragments.fragment_poses`): the drift of a
+       camera that comes back to where it was is taken out;
     2. TSDF fusion of every frame at its pose (:class:`pointfield.geometry.tsdf.TSDFVolume`,
        truncation 4 voxels, only the blocks near each frame's surface updated by it, as
        open3d's ScalableTSDFVolume does, found from every few pixels' rays:
@@ -37,7 +42,7 @@ What comes out (one folder, written whole or not at all)
     ``mesh.ply``, ``cloud.ply`` (the mesh's vertices with colours and normals),
     ``trajectory.txt`` (TUM: ``timestamp tx ty tz qx qy qz qw``, camera-to-world),
     ``trajectory.log`` (open3d / Redwood: ``i i i+1`` then the 4 x 4 camera-to-world matrix)
-    and ``report.json`` (settings, times, odometry fitness, warnings).
+    and ``report.json`` (settings, times, odometry fitness, fragments and loop closures, warnings).
 """
 
 from __future__ import annotations
@@ -56,6 +61,7 @@ from typing import Any
 import numpy as np
 
 from pointfield.errors import FormatError, OptionError, PointfieldError
+from pointfield.registration.fragments import DEFAULT_FRAGMENT_SIZE, FragmentPoses, fragment_poses
 from pointfield.registration.odometry import Intrinsics, rgbd_odometry
 
 COLOUR_FOLDERS = ("image", "color", "colour", "rgb")
@@ -257,26 +263,43 @@ class RGBDReconstruction:
             f"wrote {self.out}: {r['frames']} frames posed and fused",
             (f"  odometry: generalized ICP frame to frame, voxel {r['odometry_voxel']:g} m, fitness min "
              f"{r['fitness_min']:.3f} mean {r['fitness_mean']:.3f}, {r['seconds']['odometry']:.1f} s"),
+            self._fragment_line(),
             (f"  fusion: TSDF voxel {r['voxel']:g} m, grid {'x'.join(map(str, r['grid']))}, "
              f"{r['seconds']['fusion']:.1f} s; mesh {r['vertices']} vertices, {r['faces']} faces"),
             (f"  total {r['seconds']['total']:.1f} s; mesh.ply, cloud.ply, trajectory.txt (TUM), trajectory.log, "
              "transforms.json (nerf train / splat train)"),
         ]
         lines += [f"  warning: {w}" for w in r.get("warnings", [])]
-        return "\n".join(lines)
+        return "\n".join(line for line in lines if line)
+
+    def _fragment_line(self) -> str:
+        f, r = self.report.get("fragments", {}), self.report
+        if not f.get("used"):
+            return f"  fragments: none ({f['why']})" if f else ""
+        line = (f"  fragments: {f['count']} of {f['size']} frames, pose graph over them, "
+                f"{r['seconds'].get('fragments', 0.0):.1f} s; ")
+        if not f["loop_closure"]:
+            return line + "loop closures not tried (--no-loop-closure)"
+        return line + (f"loop closures: {f['loop_candidates']} pairs tried, {f['loops_registered']} registered, "
+                       f"{f['loops_kept']} kept, {f['loops_pruned']} pruned")
 
 
 def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str], *,
                      intrinsics: str | os.PathLike[str] | None = None, depth_scale: float | None = None,
                      depth_max: float = 3.0, voxel: float = 0.01, odometry_voxel: float = 0.02, stride: int = 2,
-                     frames: int | None = None, overwrite: bool = False, device: str | None = None,
-                     fusion_threads: int | None = 1, progress: bool = True) -> RGBDReconstruction:
+                     frames: int | None = None, fragment_size: int = DEFAULT_FRAGMENT_SIZE, loop_closure: bool = True,
+                     overwrite: bool = False, device: str | None = None, fusion_threads: int | None = 1,
+                     progress: bool = True) -> RGBDReconstruction:
     """Pose and fuse the RGB-D sequence in ``folder`` and write the scene folder ``out`` (module docstring).
 
     ``intrinsics``: the camera's JSON (default: the folder's one ``camera*.json``); ``depth_scale``:
     stored depth units per metre; ``depth_max``: metres; ``voxel``: the TSDF's voxel (metres);
     ``odometry_voxel``, ``stride``: see :func:`~pointfield.registration.odometry.rgbd_odometry`;
-    ``frames``: only the first so many. ``fusion_threads``: torch threads while fusing on the CPU
+    ``frames``: only the first so many. ``fragment_size``: a sequence of more than twice this many
+    frames is cut into fragments of so many, registered pairwise and put through a pose graph
+    (:func:`~pointfield.registration.fragments.fragment_poses`; 0: never); ``loop_closure``: with
+    fragments, register non-consecutive ones too (loop closures).
+    ``fusion_threads``: torch threads while fusing on the CPU
     (default 1; None leaves torch's setting): each frame is a few dozen elementwise passes over
     about a million voxels, too little to share -- 15 of the living room's frames fused in 6.8 s
     on one thread and 13.6 s on two of a 2-core machine shared with other jobs (docs/rgbd.md).
@@ -304,6 +327,9 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     if fusion_threads is not None and fusion_threads < 1:
         raise OptionError(f"fusion_threads must be 1 or more, got {fusion_threads}",
                           command_line=f"--fusion-threads must be 0 (torch's own) or more, got {fusion_threads}")
+    if not (isinstance(fragment_size, int) and fragment_size >= 0):
+        raise OptionError(f"fragment_size must be 0 (no fragments) or more, got {fragment_size}",
+                          command_line=f"--fragment-size must be 0 (no fragments) or more, got {fragment_size}")
     if frames is not None:
         if frames < 1:
             raise OptionError(f"frames must be 1 or more, got {frames}", command_line=f"--frames must be 1 or more, got {frames}")
@@ -322,10 +348,16 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         odometry = rgbd_odometry(depths(), camera, voxel=odometry_voxel, stride=stride)
-    odometry_done = time.perf_counter()
+        odometry_done = time.perf_counter()
+        poses, fragments = odometry.poses, None
+        if fragment_size and len(sequence) > 2 * fragment_size:
+            fragments = fragment_poses(odometry.poses, odometry.points, fragment_size, voxel=odometry_voxel,
+                                       loop_closure=loop_closure)
+            poses = fragments.poses
+    fragments_done = time.perf_counter()
 
     # The box: the posed thinned clouds, padded by the truncation and a voxel so that surfaces on its faces mesh.
-    world = np.concatenate([p @ pose[:3, :3].T + pose[:3, 3] for p, pose in zip(odometry.points, odometry.poses)])
+    world = np.concatenate([p @ pose[:3, :3].T + pose[:3, 3] for p, pose in zip(odometry.points, poses)])
     if len(world) == 0:
         raise PointfieldError(f"{sequence.root}: no depth within {depth_max} m in any frame; nothing to fuse "
                               "(check depth_scale and depth_max)")
@@ -335,7 +367,7 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     device = pick_device(device)
     volume = TSDFVolume.create(low, high, resolution, truncation_voxels=4.0, device=device,
                                memory_limit=_memory_limit())
-    cameras = Cameras(torch.as_tensor(odometry.poses), camera.fx, camera.fy, camera.cx, camera.cy,
+    cameras = Cameras(torch.as_tensor(poses), camera.fx, camera.fy, camera.cx, camera.cy,
                       camera.width, camera.height)
     stride_for_blocks = allocation_stride(volume.voxel, min(camera.fx, camera.fy), depth_max)
     # Interpolating depth between pixels only pays where pixels are wider than voxels (geometry/tsdf.py).
@@ -368,13 +400,29 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
         "grid": list(volume.shape), "box": [low.tolist(), high.tolist()],
         "vertices": len(mesh.points), "faces": len(mesh.faces), "device": str(device),
         "fusion_threads": fusion_threads or threads_before, "warnings": notes,
+        "fragments": _fragment_report(fragments, fragment_size, loop_closure, len(sequence)),
     }
     with atomic_directory(out, overwrite=overwrite) as directory:
-        _write_outputs(directory, sequence, camera, scale, odometry.poses, mesh)
-        report["seconds"] = {"odometry": odometry_done - started, "fusion": fused - odometry_done,
+        _write_outputs(directory, sequence, camera, scale, poses, mesh)
+        report["seconds"] = {"odometry": odometry_done - started, "fragments": fragments_done - odometry_done,
+                             "fusion": fused - fragments_done,
                              "total": time.perf_counter() - started}
         (directory / "report.json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
-    return RGBDReconstruction(out, odometry.poses, report)
+    return RGBDReconstruction(out, poses, report)
+
+
+def _fragment_report(fragments: FragmentPoses | None, size: int, loop_closure: bool, count: int) -> dict[str, Any]:
+    """What the fragment stage did, for ``report.json`` and the summary: nothing, or fragments and pose-graph edges."""
+    if fragments is None:
+        why = "--fragment-size 0" if not size else f"{count} frames, not more than twice the fragment size {size}"
+        return {"used": False, "size": size, "why": why}
+    return {"used": True, "size": size, "count": len(fragments.fragments), "ranges": fragments.fragments,
+            "loop_closure": loop_closure, "loop_candidates": fragments.loop_candidates,
+            "loops_registered": sum(p.kind == "loop closure" for p in fragments.pairs),
+            "loops_kept": fragments.loops_kept, "loops_pruned": fragments.loops_pruned,
+            "edges": [{"source": p.source, "target": p.target, "kind": p.kind, "how": p.how,
+                       "fitness": p.fitness, "kept": p.kept} for p in fragments.pairs],
+            "notes": fragments.notes}
 
 
 def _memory_limit() -> int:

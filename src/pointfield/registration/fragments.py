@@ -1,0 +1,225 @@
+"""Fragments and loop closures: bounding the drift of frame-to-frame odometry over a long RGB-D sequence.
+
+open3d's reconstruction system (Choi, Zhou, Koltun, "Robust Reconstruction of Indoor Scenes",
+CVPR 2015), on the odometry that :func:`~pointfield.registration.odometry.rgbd_odometry` found:
+
+1. **Fragments.** The frames are cut into runs of ``fragment_size`` (a last run shorter than half
+   of that joins the one before). A fragment's frame is that of its first camera; its cloud is
+   its frames' thinned clouds put there by the odometry, thinned again to one point per
+   ``voxel``. Within a fragment the odometry is kept: over a few dozen frames it drifts little.
+2. **Pairs.** Consecutive fragments ``k, k + 1`` are registered from the odometry's guess
+   (generalized ICP, coarse to fine: :func:`~pointfield.registration.pairwise.register`) --
+   odometry edges. With ``loop_closure``, every other pair whose boxes, placed by the odometry,
+   meet is a loop-closure candidate: registered from the odometry's guess first, and where that
+   finds too little overlap, from anywhere (FPFH + RANSAC, then the fine step), as open3d's
+   ``register_fragments.py`` does for non-adjacent fragments. A candidate whose fitness reaches
+   ``min_fitness`` becomes an *uncertain* edge.
+3. **Pose graph.** :func:`~pointfield.registration.pose_graph.optimize_pose_graph` over the
+   fragments (the first held), inlier distance ``voxel``, ``preference_loop_closure`` 5 (open3d's
+   for fragments): a loop closure the other edges disagree with is pruned.
+4. **Frames.** Each frame's pose is its fragment's optimised pose times the odometry within the
+   fragment::
+
+       pose_f = P_k  P0_k^-1  pose0_f          (k the fragment of frame f, P0_k its odometry pose)
+
+Conventions: poses are camera-to-world ``(4, 4)``; an edge ``(i, j, T_ij)`` maps fragment i into
+fragment j's frame, ``P_j T_ij = P_i`` (:mod:`pointfield.registration.pose_graph`).
+
+What this does not do that open3d's does: a pose graph within each fragment (open3d registers
+keyframes of a fragment against each other too), and a last refinement of the frames against
+the fused model.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pointfield.errors import PointfieldError
+from pointfield.registration.pose_graph import PoseGraph, PoseGraphEdge, optimize_pose_graph
+
+DEFAULT_FRAGMENT_SIZE = 100
+"""Frames per fragment (open3d's reconstruction system's ``n_frames_per_fragment``)."""
+MIN_FITNESS = 0.3
+"""A pair of fragments registered with less fitness than this is not an edge."""
+PREFERENCE_LOOP_CLOSURE = 5.0
+"""open3d's reconstruction system's ``preference_loop_closure`` for loop closures between fragments."""
+
+
+@dataclass(eq=False)
+class FragmentPair:
+    """Fragment ``source`` registered onto fragment ``target`` (``transformation`` maps source into
+    target's frame). ``kind``: ``"odometry"`` (consecutive) or ``"loop closure"``; ``how``: ``"fine"``
+    (from the odometry's guess) or ``"global"`` (FPFH + RANSAC, then fine); ``kept``: an edge of the
+    graph and not pruned by the optimisation."""
+
+    source: int
+    target: int
+    transformation: np.ndarray
+    fitness: float
+    information: np.ndarray
+    kind: str
+    how: str
+    kept: bool = False
+
+
+@dataclass(eq=False)
+class FragmentPoses:
+    """What :func:`fragment_poses` found: ``poses`` ``(N, 4, 4)`` refined camera-to-world; ``fragments``
+    the ``(first, stop)`` frame range of each; ``fragment_poses`` ``(K, 4, 4)`` before and after the
+    pose graph; ``pairs`` every registration tried that linked; ``notes`` one sentence per choice."""
+
+    poses: np.ndarray
+    fragments: list[tuple[int, int]]
+    initial_fragment_poses: np.ndarray
+    fragment_poses: np.ndarray
+    pairs: list[FragmentPair] = field(default_factory=list)
+    loop_candidates: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def loops_kept(self) -> int:
+        return sum(p.kind == "loop closure" and p.kept for p in self.pairs)
+
+    @property
+    def loops_pruned(self) -> int:
+        return sum(p.kind == "loop closure" and not p.kept for p in self.pairs)
+
+
+def split_fragments(count: int, size: int) -> list[tuple[int, int]]:
+    """``(first, stop)`` frame ranges of ``size`` frames; a last run under ``size / 2`` joins the one before."""
+    if size < 1:
+        raise PointfieldError(f"a fragment needs at least one frame, got fragment size {size}")
+    ranges = [(start, min(start + size, count)) for start in range(0, count, size)]
+    if len(ranges) > 1 and ranges[-1][1] - ranges[-1][0] < size / 2:
+        ranges[-2:] = [(ranges[-2][0], count)]
+    return ranges
+
+
+def fragment_cloud(points: list[np.ndarray], poses: np.ndarray, first: int, stop: int, voxel: float) -> np.ndarray:
+    """``(M, 3)`` frames ``first .. stop - 1``'s camera-frame clouds in camera ``first``'s frame, one point per voxel."""
+    from pointfield.registration.scan import Scan
+
+    base = np.linalg.inv(poses[first])
+    moved = [points[f] @ m[:3, :3].T + m[:3, 3] for f in range(first, stop) if len(points[f])
+             for m in (base @ poses[f],)]
+    if not moved:
+        return np.zeros((0, 3))
+    return Scan(np.concatenate(moved)).downsample(voxel).points
+
+
+def _register(source: np.ndarray, target: np.ndarray, guess: np.ndarray, voxel: float, allow_global: bool,
+              min_fitness: float):
+    """``(result, how)``: fine from ``guess``; where that links too little and ``allow_global``, FPFH +
+    RANSAC, then fine.
+
+    The fine step is generalized ICP at two levels, the clouds thinned to ``2 voxel`` with partners
+    within ``4 voxel`` (room for the odometry's drift), then as they are within ``voxel``: the
+    fragments are thinned to ``voxel`` already, and the guess is close.
+    """
+    from pointfield.registration.estimation import GeneralizedICP
+    from pointfield.registration.icp import multiscale_icp
+    from pointfield.registration.pairwise import register
+    from pointfield.registration.scan import Scan
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a low fitness is decided on below
+        result = multiscale_icp(Scan(source), Scan(target), [2 * voxel, 0.0], [4 * voxel, voxel], guess,
+                                GeneralizedICP())
+        if (result is None or result.fitness < min_fitness) and allow_global:
+            try:
+                found = register(source, target, method="global", voxel=voxel)
+            except PointfieldError:
+                found = None
+            if found is not None and (result is None or found.fitness > result.fitness):
+                return found, "global"
+    return result, "fine"
+
+
+def _boxes_meet(a: np.ndarray, b: np.ndarray, margin: float) -> bool:
+    if not len(a) or not len(b):
+        return False
+    gap = np.maximum(a.min(axis=0) - b.max(axis=0), b.min(axis=0) - a.max(axis=0))
+    return bool(np.max(gap) <= margin)
+
+
+def fragment_poses(poses: np.ndarray, points: list[np.ndarray], fragment_size: int = DEFAULT_FRAGMENT_SIZE, *,
+                   voxel: float = 0.02, loop_closure: bool = True, global_registration: bool = True,
+                   min_fitness: float = MIN_FITNESS,
+                   preference_loop_closure: float = PREFERENCE_LOOP_CLOSURE) -> FragmentPoses:
+    """Odometry ``poses`` ``(N, 4, 4)`` refined over fragments and a pose graph (module docstring).
+
+    ``points``: each frame's thinned camera-frame cloud ``(M_f, 3)`` (``Odometry.points``);
+    ``voxel``: the fragments' thinning and the registrations' inlier distance (metres);
+    ``loop_closure``: register non-consecutive fragments too; ``global_registration``: let a loop
+    closure start from anywhere where the odometry's guess links too little.
+    """
+    poses = np.asarray(poses, np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(points) != len(poses):
+        raise PointfieldError(f"fragments need (N, 4, 4) poses and N clouds, got {poses.shape} and {len(points)}")
+    if not (np.isfinite(voxel) and voxel > 0):
+        raise PointfieldError(f"the fragment voxel must be a positive number of metres, got {voxel}")
+    ranges = split_fragments(len(poses), fragment_size)
+    start = np.stack([poses[first] for first, _ in ranges])
+    clouds = [fragment_cloud(points, poses, first, stop, voxel) for first, stop in ranges]
+    last = ranges[-1][1] - ranges[-1][0]
+    notes = [f"{len(ranges)} fragments of {fragment_size} frames" + (f" (the last {last})" if last != fragment_size else "")]
+    if len(ranges) < 2:
+        return FragmentPoses(poses.copy(), ranges, start, start.copy(), [], 0, notes)
+    world = [c @ p[:3, :3].T + p[:3, 3] for c, p in zip(clouds, start)]
+    pairs: list[FragmentPair] = []
+    candidates = 0
+    for i in range(len(ranges)):
+        for j in range(i + 1, len(ranges)):
+            consecutive = j == i + 1
+            if not consecutive and not (loop_closure and _boxes_meet(world[i], world[j], 4 * voxel)):
+                continue
+            candidates += not consecutive
+            guess = np.linalg.inv(start[j]) @ start[i]  # maps fragment i into j's frame, as the odometry has it
+            result, how = (None, "fine") if min(len(clouds[i]), len(clouds[j])) < 3 else _register(
+                clouds[i], clouds[j], guess, voxel, global_registration and not consecutive, min_fitness)
+            if result is None or result.fitness < min_fitness:
+                if consecutive:  # the odometry links them: its guess is the edge, weighed by what it matches
+                    information = _information_at(clouds[i], clouds[j], guess, voxel)
+                    pairs.append(FragmentPair(i, j, guess, 0.0 if result is None else result.fitness, information,
+                                              "odometry", "odometry"))
+                    notes.append(f"fragments {i}-{j}: registration linked too little "
+                                 f"(fitness {0.0 if result is None else result.fitness:.2f}); the odometry kept")
+                continue
+            pairs.append(FragmentPair(i, j, result.transformation, result.fitness, result.information,
+                                      "odometry" if consecutive else "loop closure", how))
+    edges = [PoseGraphEdge(p.source, p.target, p.transformation, p.information, uncertain=p.kind == "loop closure")
+             for p in pairs]
+    optimised = optimize_pose_graph(PoseGraph(start, edges), voxel, reference=0,
+                                    preference_loop_closure=preference_loop_closure)
+    for pair, weight in zip(pairs, optimised.weights):
+        pair.kept = bool(weight > 0)
+    refined = np.empty_like(poses)
+    for k, (first, stop) in enumerate(ranges):
+        refined[first:stop] = optimised.poses[k] @ np.linalg.inv(start[k]) @ poses[first:stop]
+    loops = [p for p in pairs if p.kind == "loop closure"]
+    if loop_closure:
+        notes.append(f"loop closures: {candidates} candidate pairs, {len(loops)} registered "
+                     f"(fitness >= {min_fitness:g}), {sum(p.kept for p in loops)} kept, "
+                     f"{sum(not p.kept for p in loops)} pruned by the pose graph"
+                     + ("".join(f"; {p.source}-{p.target} {p.how} {p.fitness:.2f}"
+                                + ("" if p.kept else " pruned") for p in loops)))
+    return FragmentPoses(refined, ranges, start, optimised.poses, pairs, candidates, notes)
+
+
+def _information_at(source: np.ndarray, target: np.ndarray, transformation: np.ndarray, voxel: float) -> np.ndarray:
+    """``(6, 6)`` the information of ``transformation`` from the correspondences within ``voxel`` it makes."""
+    from scipy.spatial import cKDTree
+
+    from pointfield.registration.result import evaluate, information_matrix
+
+    if not len(source) or not len(target):
+        return np.eye(6) * 1e-6
+    _, _, pairs = evaluate(source, cKDTree(target), transformation, voxel)
+    return information_matrix(target, pairs) + np.eye(6) * 1e-6
+
+
+__all__ = ["DEFAULT_FRAGMENT_SIZE", "FragmentPair", "FragmentPoses", "fragment_cloud", "fragment_poses",
+           "split_fragments"]
