@@ -188,6 +188,14 @@ def test_scans_that_do_not_match_the_poses_are_refused(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_depth_frame_options_on_scans_are_refused_not_ignored(tmp_path, capsys):
+    files, _ = scan_files(tmp_path)
+    out = tmp_path / "room.bt"
+    one_line_error(capsys, ["cloud", "occupancy", str(files[0]), "--stride", "2", "--voxel", "0.1", "--out", str(out)],
+                   "--stride apply to --scene's depth frames, not to scans")
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("text, expected", [
     ("{not json", "not a poses file: invalid JSON"),
     ('{"poses": []}', "expected cloud align's"),

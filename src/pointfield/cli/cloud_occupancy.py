@@ -58,7 +58,7 @@ def add_commands(commands: argparse._SubParsersAction) -> None:
     occupancy.add_argument("--voxel", type=float, required=True, metavar="S", help="cell side, in the scans' units")
     occupancy.add_argument("--max-range", type=float, metavar="R",
                            help="rays longer than R mark free space up to R and no hit (OctoMap's maxrange)")
-    occupancy.add_argument("--stride", type=int, default=4, metavar="N",
+    occupancy.add_argument("--stride", type=int, metavar="N",
                            help="--scene: every N-th depth pixel across and down (default 4)")
     occupancy.add_argument("--depth-max", type=float, metavar="M", help="--scene: drop depth farther than M")
     occupancy.add_argument("--memory", metavar="SIZE", default=DEFAULT_MEMORY,
@@ -173,9 +173,13 @@ def run_occupancy(args: argparse.Namespace) -> int:
             raise PointfieldError("cloud occupancy: give SCANS or --scene, not both")
         if args.origin is not None:
             raise PointfieldError("cloud occupancy: --origin is for scans; a scene's frames are seen from its cameras")
-        scans = scans_from_scene(read_scene(args.scene, missing_images="keep"), args.stride, args.depth_max)
-        notes.append(f"{len(scans)} depth frames, every {args.stride}th pixel, each seen from its camera")
+        stride = 4 if args.stride is None else args.stride
+        scans = scans_from_scene(read_scene(args.scene, missing_images="keep"), stride, args.depth_max)
+        notes.append(f"{len(scans)} depth frames, every {stride}th pixel, each seen from its camera")
     else:
+        given = [name for name, value in (("--stride", args.stride), ("--depth-max", args.depth_max)) if value is not None]
+        if given:  # options of depth frames: ignored on scans, they would say nothing was wrong
+            raise PointfieldError(f"cloud occupancy: {' and '.join(given)} apply to --scene's depth frames, not to scans")
         files, poses = _scan_files(args)
         if {o.resolve() for o in args.out} & {f.resolve() for f in files}:
             raise PointfieldError("cloud occupancy: an --out is one of the scans")
