@@ -90,6 +90,9 @@ def test_tetrahedral_differences_give_the_gradient_of_an_analytic_sphere_sdf():
     assert float((gradient - exact).norm(dim=-1).median()) < 2e-3
     torch.testing.assert_close(f, points.norm(dim=-1) - 0.5, atol=1e-5, rtol=0)
     torch.testing.assert_close(features[:, 0], points.norm(dim=-1), atol=1e-5, rtol=0)
+    # No points (a batch whose rays all miss the surface's cells): empty results, not an error.
+    f, gradient, features = tetrahedral_gradient(sphere, points[:0], 1e-3)
+    assert f.shape == (0,) and gradient.shape == (0, 3) and features.shape == (0, 1)
 
 
 def test_finite_difference_normals_match_autograd_normals_of_the_network():
