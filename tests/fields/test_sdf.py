@@ -15,7 +15,9 @@ from pointfield.clouds.formats.registry import read
 from pointfield.errors import PointfieldError
 from pointfield.fields.encodings.hashgrid import HashEncoding, reference_hash_encoding
 from pointfield.fields.models import build_model
-from pointfield.fields.sdf import NeuralSDF
+from pointfield.fields.rays import RayBundle
+from pointfield.fields.sampling.occupancy import march_rays
+from pointfield.fields.sdf import NeuralSDF, tetrahedral_gradient
 from pointfield.fields.train import train
 from pointfield.geometry import export_mesh
 from pointfield.geometry.compare import sample_mesh, surface_scores
@@ -43,9 +45,10 @@ def _directions(count: int, seed: int = 0) -> torch.Tensor:
 # -- the field --------------------------------------------------------------------------------------
 
 
-def test_the_untrained_field_is_the_signed_distance_of_a_sphere():
+@pytest.mark.parametrize("gradient", ["finite-difference", "autograd"])
+def test_the_untrained_field_is_the_signed_distance_of_a_sphere(gradient):
     torch.manual_seed(0)
-    model = NeuralSDF(sphere_radius=0.5, **SMALL)
+    model = NeuralSDF(sphere_radius=0.5, gradient=gradient, **SMALL)
     directions = _directions(2000)
     for radius in (0.3, 0.5, 0.8):
         f, gradient, _ = model.sdf_and_gradient(directions * radius, create_graph=False)
@@ -73,8 +76,44 @@ def test_hash_encoding_gives_positions_the_gradient_of_its_interpolation():
     torch.testing.assert_close(ours.grad, reference.grad)
 
 
-def test_the_eikonal_term_reaches_the_hash_table_through_double_backward():
-    model = NeuralSDF(**SMALL)
+def test_tetrahedral_differences_give_the_gradient_of_an_analytic_sphere_sdf():
+    points = torch.rand(4096, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(0)) * 2 - 1
+    points = points[points.norm(dim=-1) > 0.1]
+
+    def sphere(p):
+        return p.norm(dim=-1) - 0.5, p.norm(dim=-1, keepdim=True)
+
+    f, gradient, features = tetrahedral_gradient(sphere, points, 1e-3)
+    exact = points / points.norm(dim=-1, keepdim=True)
+    # The error is the step times the Hessian (1 / |p| <= 10 here): at most 1e-2, mostly far less.
+    assert float((gradient - exact).norm(dim=-1).max()) < 1e-2
+    assert float((gradient - exact).norm(dim=-1).median()) < 2e-3
+    torch.testing.assert_close(f, points.norm(dim=-1) - 0.5, atol=1e-5, rtol=0)
+    torch.testing.assert_close(features[:, 0], points.norm(dim=-1), atol=1e-5, rtol=0)
+    # No points (a batch whose rays all miss the surface's cells): empty results, not an error.
+    f, gradient, features = tetrahedral_gradient(sphere, points[:0], 1e-3)
+    assert f.shape == (0,) and gradient.shape == (0, 3) and features.shape == (0, 1)
+
+
+def test_finite_difference_normals_match_autograd_normals_of_the_network():
+    torch.manual_seed(0)
+    model = NeuralSDF(gradient="autograd", **SMALL)
+    with torch.no_grad():  # some hash-grid detail, as after training
+        model.sdf.first.weight[:, 3:].normal_(0, 0.1)
+        model.sdf.encoding.table.normal_(0, 0.05)
+    points = _directions(2000) * 0.5
+    _, exact, _ = model.sdf_and_gradient(points, create_graph=False)
+    model.gradient, model.finite_difference_step = "finite-difference", 1e-4
+    _, numerical, _ = model.sdf_and_gradient(points, create_graph=False)
+    cosines = torch.nn.functional.cosine_similarity(numerical, exact, dim=-1)
+    # Well inside the finest cells (1/64 of the box's half-side here) the two agree; the few
+    # tetrahedra that straddle a cell's face see the trilinear grid's kink there.
+    assert float(cosines.median()) > 0.9999 and float(cosines.quantile(0.05)) > 0.99, cosines.quantile(0.05)
+
+
+@pytest.mark.parametrize("gradient", ["finite-difference", "autograd"])
+def test_the_eikonal_term_reaches_the_hash_table(gradient):
+    model = NeuralSDF(gradient=gradient, **SMALL)
     with torch.no_grad():  # as after some training: hash features in use
         model.sdf.first.weight[:, 3:].normal_(0, 0.1)
         model.sdf.encoding.table.normal_(0, 0.1)
@@ -100,6 +139,25 @@ def test_neus_alphas_composite_to_the_logistic_cdf_across_a_plane():
     assert float(torch.prod(1 - alphas)) == pytest.approx(float(expected), abs=1e-3)
     # Leaving a surface (the ray going up, out of the solid) absorbs nothing.
     assert float(model.alphas(f, gradient, -directions, deltas).detach().max()) == 0
+
+
+def test_early_termination_drops_only_samples_that_cannot_change_a_pixel(monkeypatch):
+    torch.manual_seed(0)
+    model = NeuralSDF(initial_variance=0.5, **SMALL).eval()  # s = e^5: a sharp sphere of radius 0.75
+    directions = _directions(256, seed=3)
+    origins = -4.0 * directions + 0.3 * torch.randn(256, 3, generator=torch.Generator().manual_seed(4))
+    rays = RayBundle(origins, directions, torch.zeros(256), torch.full((256,), 8.0))
+    with torch.no_grad():
+        marched = march_rays(rays, model.grid, model.step_size)
+        kept_samples = model.terminated(marched, rays)
+        (kept,) = model(rays).passes
+        monkeypatch.setattr(model, "terminated", lambda samples, rays: samples)
+        (everything,) = model(rays).passes
+    assert float((kept.color - everything.color).abs().max()) < 1e-3
+    assert float((kept.opacity - everything.opacity).abs().max()) < 1e-3
+    assert float(everything.opacity.max()) > 0.99  # rays that do meet the sphere
+    # The full occupancy grid of an untrained field marches through the whole sphere: most of it goes.
+    assert len(kept_samples) < 0.6 * len(marched), (len(kept_samples), len(marched))
 
 
 def test_the_sdf_model_refuses_an_unbounded_scene():

@@ -8,19 +8,26 @@ order a ray meets them:
 1. **Sampling**: the box is marched at a fixed step through the occupied cells of an
    :class:`~pointfield.fields.sampling.occupancy.OccupancyGrid`, as the hash-grid field (``ngp``)
    does; a cell is occupied while its largest possible logistic density (below) is not
-   negligible, i.e. near the surface (instant-NSR's use of the grid for an SDF).
+   negligible, i.e. near the surface (instant-NSR's use of the grid for an SDF). Then *early
+   termination*, as ngp's: one evaluation of ``f`` per sample without gradients estimates each
+   section's opacity from consecutive samples of its ray, ``1 - Phi_s(f_{i+1}) / Phi_s(f_i)``
+   (NeuS's estimate when it up-samples), and the samples behind which a ray's transmittance
+   is below ``EARLY_STOP_TRANSMITTANCE`` are dropped before the full field runs.
 2. **The SDF network** (:class:`SDFNetwork`), on coordinates ``p = (x - c) / r`` that map the box
    into ``[-1, 1]^3`` (``c`` its centre, ``r`` half its longest side): the position and its
-   multiresolution hash encoding (Instant-NGP) into a small softplus MLP giving the signed
+   multiresolution hash encoding (Instant-NGP) into a small ReLU MLP giving the signed
    distance ``f_p(p)`` (in those units; world distances are ``r f_p``) and 15 geometry features.
    Initialised as NeuS / IDR / SAL do (*geometric init*, Atzmon & Lipman 2020): the hash
    features enter with zero weights and the MLP starts as ``f_p(p) ~ |p| - radius``, a valid
    SDF of a sphere, so the eikonal term holds from the first step (the distance row of the last
    layer fitted to it by least squares, :meth:`SDFNetwork.geometric_init`).
-3. **Normals** ``n = grad f / |grad f|``, by autograd. Training's eikonal term needs the gradient
-   of that gradient (double backward), which ``torch.compile`` cannot give: the hash encoding
-   runs eagerly whenever its positions need a gradient
-   (:class:`~pointfield.fields.encodings.hashgrid.HashEncoding`), on CPU and CUDA alike.
+3. **Normals** ``n = grad f / |grad f|``, by finite differences over a tetrahedron of points
+   half a finest hash cell from the sample (:func:`tetrahedral_gradient`; NeuS2 and Neuralangelo
+   take numerical gradients too): four evaluations whose backward is the hash grid's ordinary one,
+   compiled like ngp's. ``gradient="autograd"`` takes autograd's instead, whose eikonal term
+   needs the gradient of that gradient (double backward), which ``torch.compile`` cannot give:
+   the hash encoding then runs eagerly (:class:`~pointfield.fields.encodings.hashgrid.HashEncoding`)
+   and a sample costs 1.6 times as much on a CPU (:class:`NeuralSDF`).
 4. **Colour**: spherical harmonics of the view direction, the normal and the geometry features
    into a 64-wide MLP, sigmoid RGB (NeuS's "idr" colour network, with SH for the direction).
 5. **Opacity from the SDF**, NeuS's unbiased, occlusion-aware alpha (Wang et al. 2021,
@@ -58,9 +65,9 @@ from torch.nn import functional as F
 from pointfield.fields.encodings.hashgrid import HashEncoding
 from pointfield.fields.encodings.spherical_harmonics import sh_basis
 from pointfield.fields.field import PROBE_COST, FieldOutput, RadianceField, checked_box
-from pointfield.fields.ngp import DIRECTION_SH_DEGREE, GEOMETRY_FEATURES
-from pointfield.fields.rays import RayBundle, SceneExtent
-from pointfield.fields.rendering import composite
+from pointfield.fields.ngp import DIRECTION_SH_DEGREE, EARLY_STOP_TRANSMITTANCE, GEOMETRY_FEATURES
+from pointfield.fields.rays import RayBundle, RaySamples, SceneExtent
+from pointfield.fields.rendering import composite, transmittance_from_optical_depth
 from pointfield.fields.sampling.occupancy import OccupancyGrid, march_rays
 
 INITIAL_VARIANCE = 0.3
@@ -69,25 +76,55 @@ SOFTPLUS_BETA = 100.0
 """NeuS's softplus sharpness: ReLU-like, with a continuous gradient for the normals and the eikonal term."""
 MAX_ALPHA = 1 - 1e-6
 """Alphas are capped here before ``-ln(1 - alpha)``, so that an opaque section has a finite density."""
+GRADIENTS = ("finite-difference", "autograd")
+"""How :meth:`NeuralSDF.sdf_and_gradient` takes ``grad f``: four offset evaluations, or autograd (module docstring, step 3)."""
+TETRAHEDRON = ((1.0, -1.0, -1.0), (-1.0, -1.0, 1.0), (-1.0, 1.0, -1.0), (1.0, 1.0, 1.0))
+"""The offsets of :func:`tetrahedral_gradient`: a regular tetrahedron's corners, ``sum_k v_k v_k^T = 4 I``."""
+
+
+def tetrahedral_gradient(function, p: torch.Tensor, step: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(f (N,), grad f (N, 3), features (N, C))`` at ``p`` (N, 3) from ``function`` at four points around each.
+
+    ``function``: ``(M, 3) -> (f (M,), features (M, C))``, called once on the ``4 N`` points
+    ``p + step v_k`` (``v_k`` the corners of :data:`TETRAHEDRON`). With ``f_k`` its values there,
+
+        grad f ~ sum_k v_k f_k / (4 step),      f ~ mean_k f_k,      features ~ mean_k features_k
+
+    (Taylor: ``sum_k v_k v_k^T = 4 I`` leaves the gradient, with an error ``step`` times the
+    Hessian's off-diagonal terms; the mean is off by ``step^2 / 2`` times the Laplacian). Four
+    evaluations where central differences take six, and none needs a gradient with respect to
+    the points: the gradient is differentiable through ``function``'s parameters with ordinary
+    backward passes (the SDF's eikonal term and its alphas' cosines), which ``torch.compile``'d
+    kernels have, where autograd's gradient needs a double backward. The features are the mean
+    over a region ``step`` wide: a blur below the finest hash cell at the default step.
+    """
+    offsets = step * torch.tensor(TETRAHEDRON, dtype=p.dtype, device=p.device)  # (4, 3)
+    values, features = function((p[None] + offsets[:, None]).reshape(-1, 3))
+    values, features = values.reshape(4, p.shape[0]), features.reshape(4, p.shape[0], features.shape[-1])
+    gradient = torch.einsum("kn,kc->nc", values, offsets) / (4 * step * step)
+    return values.mean(dim=0), gradient, features.mean(dim=0)
 
 
 class SDFNetwork(nn.Module):
-    """``p (N, 3)`` in ``[-1, 1]^3`` -> ``(f (N,), features (N, 15))``: the position and its hash encoding, a softplus MLP.
+    """``p (N, 3)`` in ``[-1, 1]^3`` -> ``(f (N,), features (N, 15))``: the position and its hash encoding, an MLP.
 
     ``radius``: of the sphere the untrained network's zero level set is (geometric init, module
     docstring). Hash-grid options as :class:`~pointfield.fields.encodings.hashgrid.HashEncoding`.
+    ``smooth``: softplus activations (NeuS's, whose second derivative autograd's eikonal term
+    needs), else ReLU (instant-nsr-pl's and NeuS2's with numerical gradients; on a CPU a third
+    of softplus's cost, which was 40 % of a finite-difference training step, measured).
     """
 
     def __init__(self, levels: int = 8, features_per_level: int = 4, log2_table_size: int = 17,
                  min_resolution: int = 16, max_resolution: int = 512, hidden: int = 64, radius: float = 0.5,
-                 backend: str = "auto"):
+                 backend: str = "auto", smooth: bool = True):
         super().__init__()
         self.encoding = HashEncoding(levels, features_per_level, log2_table_size, min_resolution, max_resolution,
                                      backend=backend)
         self.first = nn.Linear(3 + self.encoding.output_dim, hidden)
         self.middle = nn.Linear(hidden, hidden)
         self.last = nn.Linear(hidden, 1 + GEOMETRY_FEATURES)
-        self.activation = nn.Softplus(beta=SOFTPLUS_BETA)
+        self.activation = nn.Softplus(beta=SOFTPLUS_BETA) if smooth else nn.ReLU()
         self.geometric_init(radius)
 
     @torch.no_grad()
@@ -131,14 +168,19 @@ class NeuralSDF(RadianceField):
     ``box``: ``(2, 3)`` world min/max of the object's box; ``unbounded`` must be False (an SDF of
     contracted space has no closed zero level set to export). ``steps_across_box``,
     ``grid_resolution``, ``target_samples``, the hash-grid options and ``backend`` as for
-    :class:`~pointfield.fields.ngp.InstantNGP`; ``target_samples`` defaults to 2^13, a quarter
-    of ngp's sample budget over a CPU's step: a sample here costs about seven of ngp's (the
-    eager hash grid, the gradient and its own backward; benchmarks/records/sdf_field.json), and
-    on the cube at 64 px 2^13 gave
+    :class:`~pointfield.fields.ngp.InstantNGP`; ``target_samples`` defaults to 2^13, an eighth
+    of ngp's sample budget over a CPU's step: a sample here costs about three of ngp's with the
+    finite-difference gradient (four evaluations) and four to five with autograd's (the eager
+    hash grid, the gradient and its own backward): 0.067 and 0.107 ms a kept sample against
+    ngp's 0.024, forward and backward through 1,024 rays of the untrained fields, one thread of a
+    shared 2-core machine. With autograd's gradient on the cube at 64 px 2^13 gave
     128 steps and 21.1 dB in 60 s where 2^15 gave 34 steps and 19.6 dB (CUDA runs take
     :data:`~pointfield.fields.ngp.CUDA_OPTIONS`' 2^18). ``sphere_radius``: the untrained surface's
     radius as a fraction of the box's half-side; ``initial_variance``: ``v`` of ``s = exp(10 v)``;
     ``eikonal_weight`` and ``eikonal_points`` (uniform box points per step besides the samples).
+    ``gradient``: "finite-difference" (default) or "autograd" (module docstring, step 3);
+    ``finite_difference_step``: the tetrahedron's offset in box units (default half the finest
+    hash cell, ``1 / max_resolution``).
     """
 
     def __init__(
@@ -159,12 +201,21 @@ class NeuralSDF(RadianceField):
         initial_variance: float = INITIAL_VARIANCE,
         eikonal_weight: float = 0.1,
         eikonal_points: int = 1024,
+        gradient: str = "finite-difference",
+        finite_difference_step: float | None = None,
     ):
         super().__init__()
         if unbounded:
             raise ValueError("the sdf model needs a bounded scene (an object in a box); pass --scene-box bounded "
                              "or the box's six numbers")
         box = checked_box(box)
+        if gradient not in GRADIENTS:
+            raise ValueError(f"gradient is one of {', '.join(GRADIENTS)}; got {gradient!r}")
+        if finite_difference_step is not None and not finite_difference_step > 0:
+            raise ValueError(f"finite_difference_step must be > 0 (box units), got {finite_difference_step}")
+        self.gradient = gradient
+        self.finite_difference_step = (1.0 / max_resolution if finite_difference_step is None
+                                       else float(finite_difference_step))
         if not 0 < sphere_radius < 1:
             raise ValueError(f"sphere_radius is a fraction of the box's half-side, in (0, 1); got {sphere_radius}")
         self.register_buffer("box", box.clone())
@@ -175,7 +226,7 @@ class NeuralSDF(RadianceField):
         self.step_size = float(torch.linalg.norm(box[1] - box[0])) / float(steps_across_box)
         self.eikonal_weight, self.eikonal_points = float(eikonal_weight), int(eikonal_points)
         self.sdf = SDFNetwork(levels, features_per_level, log2_table_size, min_resolution, max_resolution, hidden,
-                              sphere_radius, backend)
+                              sphere_radius, backend, smooth=gradient == "autograd")
         self.variance = nn.Parameter(torch.tensor(float(initial_variance)))
         direction_dim = (DIRECTION_SH_DEGREE + 1) ** 2
         self.color_mlp = nn.Sequential(
@@ -210,9 +261,16 @@ class NeuralSDF(RadianceField):
     def sdf_and_gradient(self, p: torch.Tensor, create_graph: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``(f (N,), grad f (N, 3), features (N, 15))`` at box-unit points ``p`` (N, 3).
 
+        By :func:`tetrahedral_gradient` or autograd (``gradient``, module docstring, step 3).
         ``create_graph``: keep the gradient differentiable (training: the eikonal loss and the
         alphas' cosines backpropagate through it); else all three come back detached (rendering).
         """
+        if self.gradient == "finite-difference":
+            with torch.set_grad_enabled(create_graph and torch.is_grad_enabled()):
+                f, gradient, features = tetrahedral_gradient(self.sdf, p.detach(), self.finite_difference_step)
+            if not create_graph:
+                f, gradient, features = f.detach(), gradient.detach(), features.detach()
+            return f, gradient, features
         with torch.enable_grad():
             p = p.detach().requires_grad_(True)
             f, features = self.sdf(p)
@@ -252,7 +310,7 @@ class NeuralSDF(RadianceField):
         self.grid.update(self.occupancy_density, step, self.step_size, generator)
 
     def warm_up(self, rays: int = 1024) -> None:
-        """Run the marcher and the no-gradient SDF once, so their compiled kernels are built off the clock."""
+        """Run the marcher and the SDF once, with and without gradients, so their compiled kernels are built off the clock."""
         device = self.box.device
         generator = torch.Generator().manual_seed(0)
         directions = F.normalize(torch.randn((rays, 3), generator=generator), dim=-1).to(device)
@@ -263,9 +321,30 @@ class NeuralSDF(RadianceField):
         with torch.no_grad():
             samples = march_rays(bundle, self.grid, self.step_size, backend=self.backend)
             self.sdf(self.to_box_units(samples.positions(bundle)))
+        if self.gradient == "finite-difference":  # training's pass: the hash grid's compiled backward
+            self.sdf(self.to_box_units(samples.positions(bundle)))[0].sum().backward()
         self.zero_grad(set_to_none=True)
 
     # -- rendering ----------------------------------------------------------------------------------
+
+    @torch.no_grad()
+    def terminated(self, samples: RaySamples, rays: RayBundle) -> RaySamples:
+        """The packed ``samples`` before each ray's estimated transmittance falls below ``EARLY_STOP_TRANSMITTANCE``.
+
+        One gradient-free evaluation of ``f`` per sample; section ``i`` of a ray, up to its next
+        sample, has opacity ``1 - Phi_s(f_{i+1}) / Phi_s(f_i)`` (at least 0; NeuS's estimate when
+        it up-samples, which needs no normal), its last section none. Dropping what lies behind
+        changes no pixel by more than that transmittance.
+        """
+        if len(samples) < 2:
+            return samples
+        f = self.sdf(self.to_box_units(samples.positions(rays)))[0]
+        cdf = torch.sigmoid(self.sharpness * f)
+        same_ray = samples.ray_indices[1:] == samples.ray_indices[:-1]
+        following = torch.cat([torch.where(same_ray, cdf[1:], cdf[:-1]), cdf[-1:]])
+        alpha = (1 - following / (cdf + 1e-5)).clamp(0.0, MAX_ALPHA)
+        transmittance = transmittance_from_optical_depth(-torch.log1p(-alpha), samples.ray_indices)
+        return samples.select(transmittance > EARLY_STOP_TRANSMITTANCE)
 
     def forward(
         self,
@@ -277,6 +356,8 @@ class NeuralSDF(RadianceField):
         """Render ``rays``: one pass; while training with gradients, the eikonal loss as the auxiliary loss."""
         training = torch.is_grad_enabled() and self.training
         samples = march_rays(rays, self.grid, self.step_size, jitter, generator, self.backend)
+        probed = len(samples)
+        samples = self.terminated(samples, rays)
         directions = samples.view_directions(rays)
         f, gradient, features = self.sdf_and_gradient(self.to_box_units(samples.positions(rays)), training)
         alpha = self.alphas(f, gradient, directions, samples.deltas / self.scale)
@@ -285,7 +366,7 @@ class NeuralSDF(RadianceField):
         view = sh_basis(directions, DIRECTION_SH_DEGREE)
         colors = torch.sigmoid(self.color_mlp(torch.cat([view, normals, features], dim=-1)))
         rendered = composite(sigmas, colors, samples, background)
-        cost = float(len(samples))
+        cost = float(len(samples)) + PROBE_COST * probed
         auxiliary = None
         if training and self.eikonal_weight > 0:
             uniform = torch.rand((self.eikonal_points, 3), generator=generator).to(rays.device) * 2 - 1
