@@ -288,7 +288,7 @@ class Voxels:
 
 
 def grid_pool(
-    voxels_grid: torch.Tensor, batch: torch.Tensor, features: torch.Tensor, stride: int = 2
+    grid: torch.Tensor, batch: torch.Tensor, features: torch.Tensor, stride: int = 2
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Strided voxel pooling: ``(grid (M', 3), batch (M',), features (M', C), parent (M,))``.
 
@@ -296,13 +296,13 @@ def grid_pool(
     the channel-wise max over its children (``scatter_reduce`` "amax"). Parents are sorted by
     key, so their order does not depend on the children's.
     """
-    coarse = torch.div(voxels_grid, stride, rounding_mode="floor")
+    coarse = torch.div(grid, stride, rounding_mode="floor")
     unique, parent = torch.unique(voxel_keys(coarse, batch), return_inverse=True)
     pooled = features.new_zeros(len(unique), features.shape[1]).scatter_reduce(
         0, parent[:, None].expand_as(features), features, "amax", include_self=False)
-    mask = (1 << _AXIS_BITS) - 1
-    grid = torch.stack([(unique >> (2 * _AXIS_BITS)) & mask, (unique >> _AXIS_BITS) & mask, unique & mask], 1) - 1
-    return grid, unique >> (3 * _AXIS_BITS), pooled, parent
+    axis = (1 << _AXIS_BITS) - 1
+    decoded = torch.stack([(unique >> (2 * _AXIS_BITS)) & axis, (unique >> _AXIS_BITS) & axis, unique & axis], 1)
+    return decoded - 1, unique >> (3 * _AXIS_BITS), pooled, parent
 
 
 # ---------------------------------------------------------------------------------------------
