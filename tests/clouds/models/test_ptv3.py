@@ -131,6 +131,12 @@ def test_ptv3_refuses_to_classify_and_a_crop_too_wide_for_its_codes():
         model(torch.tensor([[[0.0, 0, 0], [1.0, 0, 0]]]))
 
 
+def test_object_training_refuses_ptv3_with_one_line_naming_what_it_is_for(tmp_path, capsys):
+    assert main(["segment", "train", "--model", "ptv3", "--out", str(tmp_path / "run"), "--no-progress"]) != 0
+    assert "'ptv3' segments scenes" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+
+
 @pytest.fixture(scope="module")
 def rooms(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("rooms") / "rooms"
