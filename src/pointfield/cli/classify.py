@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 MODELS = ("pointnet", "pointnet2", "pointnet2-msg")
+SCENE_MODELS = ("ptv3",)  # segment train on scenes only
 DEFAULT_RUN_COST = {
     "classify": "A default run (PointNet, 10 epochs of the built-in shapes) takes about 15 minutes on a 2-core "
     "laptop CPU, 90 seconds an epoch (one epoch costs about 170 CPU-seconds; docs/runs.md).",
@@ -62,8 +63,10 @@ def add_training_arguments(parser: argparse.ArgumentParser, task: str) -> None:
         help="training data: a folder, or for segment also a scene dataset or labelled files "
         "(default: the built-in synthetic shapes)",
     )
-    parser.add_argument("--model", choices=MODELS, default=None if scenes else "pointnet",
-                        help="pointnet (default; scenes: pointnet2), pointnet2 (PointNet++ SSG) or pointnet2-msg")
+    parser.add_argument("--model", choices=MODELS + (SCENE_MODELS if scenes else ()),
+                        default=None if scenes else "pointnet",
+                        help="pointnet (default; scenes: pointnet2), pointnet2 (PointNet++ SSG) or pointnet2-msg"
+                        + ("; for scenes also ptv3 (Point Transformer V3)" if scenes else ""))
     parser.add_argument("--epochs", type=int, help="epochs (default: pointnet 10, pointnet2 5)")
     parser.add_argument("--batch-size", type=int,
                         help="clouds per batch, per process (default: pointnet 32, pointnet2 16)")

@@ -195,10 +195,14 @@ class SceneSegmentTask(Task):
         data = [str(Path(p).resolve()) for p in settings["data"]]
         if not data:
             raise PointfieldError("no DATA given: a dataset folder or labelled files")
+        model_options = dict(MODEL_OPTIONS[config["model"]])
+        if "voxel" in model_options and config["grid"] > 0:
+            # PTv3's level-0 voxels are the data's own grid cells, in the unit-ball units crops reach it in.
+            model_options["voxel"] = config["grid"] / config["radius"]
         return {
             "task": TASK,
             **config,
-            "model_options": dict(MODEL_OPTIONS[config["model"]]),
+            "model_options": model_options,
             "data": data,
             "layout": scene_layout(data),
             "features": list(settings["features"]) if settings.get("features") else None,

@@ -45,7 +45,7 @@ from pointfield.clouds.datasets import (
     is_shapenetpart,
     modelnet_source,
 )
-from pointfield.clouds.models import MODEL_NAMES, MODEL_OPTIONS, build_model, count_parameters
+from pointfield.clouds.models import MODEL_NAMES, MODEL_OPTIONS, SCENE_ONLY, build_model, count_parameters
 from pointfield.clouds.shapes import SyntheticShapes
 from pointfield.clouds.transforms import (
     Compose,
@@ -177,6 +177,9 @@ class CloudTask(Task):
         model = settings["model"]
         if model not in MODEL_NAMES:
             raise PointfieldError(f"unknown model {model!r}: expected one of {', '.join(MODEL_NAMES)}")
+        if model in SCENE_ONLY:
+            raise PointfieldError(f"model {model!r} segments scenes: give segment train a scene dataset or "
+                                  "labelled scans")
         if settings["points"] < 1:
             raise PointfieldError(f"--points must be at least 1, got {settings['points']}")
         options = dict(MODEL_OPTIONS[model])
