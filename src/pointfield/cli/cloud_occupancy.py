@@ -6,7 +6,7 @@
                                      :mod:`pointfield.volumes.scans`) into
                                      :class:`pointfield.volumes.OccupancyMap`, written as OctoMap
                                      ``.bt`` and / or the occupied cells as a voxel file
-``cloud occupancy-query``           :func:`~pointfield.volumes.occupancy.read_octomap`, then
+``cloud occupancy-query``            :func:`~pointfield.volumes.occupancy.read_octomap`, then
                                      ``state`` and ``distance_to_obstacle`` at given points
 ===================================  ==============================================================
 """

@@ -99,7 +99,7 @@ def split_fragments(count: int, size: int) -> list[tuple[int, int]]:
 
 
 def fragment_cloud(points: list[np.ndarray], poses: np.ndarray, first: int, stop: int, voxel: float) -> np.ndarray:
-    """``(M, 3)`` frames ``first .. stop - 1``'s camera-frame clouds in camera ``first``'s frame, one point per voxel."""
+    """``(M, 3)``: the camera-frame clouds of frames ``first`` to ``stop - 1`` in camera ``first``'s frame, one point per voxel."""
     from pointfield.registration.scan import Scan
 
     base = np.linalg.inv(poses[first])

@@ -23,18 +23,18 @@ Intrinsics
 The pipeline (:func:`reconstruct_rgbd`)
     1. frame-to-frame odometry, generalized ICP on thinned depth clouds
        (:func:`pointfield.registration.odometry.rgbd_odometry`);
-    1b. on a sequence of more than twice ``fragment_size`` frames (default 100, open3d's), fragments
+    2. on a sequence of more than twice ``fragment_size`` frames (default 100, open3d's), fragments
        of that many frames registered pairwise -- consecutive ones and, with ``loop_closure``, any
        two whose boxes meet -- and a pose graph over them that prunes the loop closures it
        disagrees with (:func:`pointfield.registration.fragments.fragment_poses`): the drift of a
        camera that comes back to where it was is taken out;
-    2. TSDF fusion of every frame at its pose (:class:`pointfield.geometry.tsdf.TSDFVolume`,
+    3. TSDF fusion of every frame at its pose (:class:`pointfield.geometry.tsdf.TSDFVolume`,
        truncation 4 voxels, only the blocks near each frame's surface updated by it, as
        open3d's ScalableTSDFVolume does, found from every few pixels' rays:
        :func:`pointfield.geometry.tsdf.allocation_stride`; each voxel reads the depth of the pixel it
        falls in, as open3d does, unless pixels at ``depth_max`` are wider than a voxel), over the
        box of the posed clouds;
-    3. marching cubes, floaters dropped (:func:`pointfield.geometry.meshes.mesh_from_volume`).
+    4. marching cubes, floaters dropped (:func:`pointfield.geometry.meshes.mesh_from_volume`).
 What comes out (one folder, written whole or not at all)
     ``transforms.json`` (nerfstudio format: posed colour images with ``depth_file_path`` and
     ``depth_unit_scale_factor``; ``nerf train`` and ``splat train`` read it, the splats start

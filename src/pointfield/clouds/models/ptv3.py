@@ -19,14 +19,14 @@ level, as Pointcept's ``Point`` dict carries a level through the network.
 
 Sizes (the defaults, kept small enough to train on two CPU cores):
 
-==========  =========  ========  =====  ======  ===========================================
-level       voxel      channels  heads  blocks  in the unit-ball crops of a 2 m, 5 cm recipe
-==========  =========  ========  =====  ======  ===========================================
-0           s          32 / 64   2 / 4  1 / 1   s = 0.025 (the data's own 5 cm grid)
-1           2 s        64 / 64   4 / 4  1 / 1
-2           4 s        128 / 128 8 / 8  2 / 1
-3           8 s        256       16     1
-==========  =========  ========  =====  ======  ===========================================
+==========  =========  =========  =====  ======  ===========================================
+level       voxel      channels   heads  blocks  in the unit-ball crops of a 2 m, 5 cm recipe
+==========  =========  =========  =====  ======  ===========================================
+0           s          32 / 64    2 / 4  1 / 1   s = 0.025 (the data's own 5 cm grid)
+1           2 s        64 / 64    4 / 4  1 / 1
+2           4 s        128 / 128  8 / 8  2 / 1
+3           8 s        256        16     1
+==========  =========  =========  =====  ======  ===========================================
 
 (encoder / decoder; head dimension 16 everywhere, MLP ratio 4, patches of 64 voxels.) Pointcept's
 PTv3 has five stages of (32, 64, 128, 256, 512) channels, (2, 2, 2, 6, 2) blocks and patches
