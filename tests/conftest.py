@@ -32,6 +32,13 @@ def pytest_configure(config):
         torch.set_num_threads(max(1, cores // workers))
 
 
+LONGEST_FOLDERS = ("tests/guides",)
+"""Folders handed out first. xdist orders the folders by their number of tests, and tests/guides
+has seven that take over two minutes together (the README's and the guides' commands): handed out
+among the last, one worker can still be on them long after the other has finished (longest first
+balances best)."""
+
+
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
     """pytest-xdist hands out each folder's tests to one worker (module doc).
@@ -44,6 +51,11 @@ def pytest_xdist_make_scheduler(config, log):
     class ByFolder(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             return nodeid.split("::", 1)[0].rpartition("/")[0]
+
+        def _assign_work_unit(self, node) -> None:
+            for scope in [scope for scope in self.workqueue if scope.endswith(LONGEST_FOLDERS)]:
+                self.workqueue.move_to_end(scope, last=False)
+            super()._assign_work_unit(node)
 
     return ByFolder(config, log)
 
