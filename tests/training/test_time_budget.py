@@ -121,18 +121,28 @@ def test_the_exercise_over_an_old_one_says_out_to_python_and_dash_dash_out_to_th
     assert capsys.readouterr().err.strip().endswith("choose another --out")
 
 
+def blank_renderer(clock: list[float] | None = None, seconds_at_128: float = 0.0):
+    """``(sizes, render)``: a renderer of blank views that appends each view's width to ``sizes`` and,
+    given a mocked ``clock``, advances it by ``seconds_at_128`` per 128 x 128 pixels (a render's cost
+    in proportion to its pixels)."""
+    sizes = []
+
+    def render(cameras):
+        width, height = int(cameras.width[0]), int(cameras.height[0])
+        sizes.append(width)
+        if clock is not None:
+            clock[0] += seconds_at_128 * width * height / 128**2
+        return [{"rgb": torch.zeros(height, width, 3), "depth": torch.zeros(height, width),
+                 "opacity": torch.ones(height, width)}]
+
+    return sizes, render
+
+
 def test_a_final_evaluation_that_cannot_fit_one_view_scores_smaller_views(monkeypatch):
     scene = synthetic_scene("cube", views=12, size=128)
     clock = [0.0]
     monkeypatch.setattr(heldout.time, "perf_counter", lambda: clock[0])
-    sizes = []
-
-    def render(cameras):  # 16 s a view at 128 x 128, in proportion to the pixels
-        width, height = int(cameras.width[0]), int(cameras.height[0])
-        sizes.append(width)
-        clock[0] += 16.0 * width * height / 128**2
-        return [{"rgb": torch.zeros(height, width, 3), "depth": torch.zeros(height, width),
-                 "opacity": torch.ones(height, width)}]
+    sizes, render = blank_renderer(clock, seconds_at_128=16.0)
 
     evaluation = heldout.HeldoutEvaluation(scene, [0, 1, 2], [0])
     evaluation.during(render)  # measures 16 s a view at full size
@@ -149,14 +159,7 @@ def test_a_run_stopped_before_any_evaluation_times_a_small_view_before_its_final
     scene = synthetic_scene("cube", views=12, size=128)
     clock = [0.0]
     monkeypatch.setattr(heldout.time, "perf_counter", lambda: clock[0])
-    sizes = []
-
-    def render(cameras):  # 16 s a view at 128 x 128, in proportion to the pixels
-        width, height = int(cameras.width[0]), int(cameras.height[0])
-        sizes.append(width)
-        clock[0] += 16.0 * width * height / 128**2
-        return [{"rgb": torch.zeros(height, width, 3), "depth": torch.zeros(height, width),
-                 "opacity": torch.ones(height, width)}]
+    sizes, render = blank_renderer(clock, seconds_at_128=16.0)
 
     evaluation = heldout.HeldoutEvaluation(scene, [0, 1, 2], [0])
     scores, _ = evaluation.final(render, TimeBudget(6.0 + heldout.WRITING_SECONDS, started=0.0))
@@ -167,13 +170,7 @@ def test_a_run_stopped_before_any_evaluation_times_a_small_view_before_its_final
 
 def test_without_a_time_budget_the_final_evaluation_renders_no_probe():
     scene = synthetic_scene("cube", views=12, size=64)
-    sizes = []
-
-    def render(cameras):
-        width, height = int(cameras.width[0]), int(cameras.height[0])
-        sizes.append(width)
-        return [{"rgb": torch.zeros(height, width, 3), "depth": torch.zeros(height, width),
-                 "opacity": torch.ones(height, width)}]
+    sizes, render = blank_renderer()
 
     scores, _ = heldout.HeldoutEvaluation(scene, [0, 1], [0]).final(render, TimeBudget(None))
     assert sizes == [64, 64] and scores["views"] == 2 and "evaluation_downscale" not in scores
