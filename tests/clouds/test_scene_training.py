@@ -13,29 +13,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scene_rooms import TINY
 
 import pointfield
 from pointfield.cli import main
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.scene_crops import CropFinder, SceneCrops, class_weights, cover, prepare_scene
 from pointfield.clouds.scene_tasks import SceneSegmentTask, class_palette
-from pointfield.clouds.synthetic_scenes import ROOM_CLASSES, make_scenes, synthetic_scene
+from pointfield.clouds.synthetic_scenes import ROOM_CLASSES, synthetic_scene
 from pointfield.clouds.transforms import ColourDrop, ColourJitter
 from pointfield.training.loop import TrainingState
 from pointfield.training.run import RunDirectory
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-
-TINY = ["--grid", "0.12", "--radius", "1.5", "--points", "192", "--crops", "24", "--batch-size", "8",
-        "--no-progress", "--device", "cpu"]
-
-
-@pytest.fixture(scope="module")
-def rooms(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("rooms") / "rooms"
-    make_scenes(root, "room", 3, seed=10, density=0.04)
-    return root
-
 
 @pytest.fixture(scope="module")
 def run(rooms, tmp_path_factory) -> Path:

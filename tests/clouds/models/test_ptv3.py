@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from scene_rooms import TINY
 
 import pointfield
 from pointfield.cli import main
@@ -28,13 +29,10 @@ from pointfield.clouds.models.ptv3 import (
     voxel_neighbours,
 )
 from pointfield.clouds.scene_tasks import train_scenes
-from pointfield.clouds.synthetic_scenes import ROOM_CLASSES, make_scenes
+from pointfield.clouds.synthetic_scenes import ROOM_CLASSES
 from pointfield.errors import PointfieldError
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-
-TINY = ["--grid", "0.12", "--radius", "1.5", "--points", "192", "--crops", "24", "--batch-size", "8",
-        "--no-progress", "--device", "cpu"]
 
 
 def distinct_voxels(count: int, side: int, clouds: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
@@ -135,13 +133,6 @@ def test_object_training_refuses_ptv3_with_one_line_naming_what_it_is_for(tmp_pa
     assert main(["segment", "train", "--model", "ptv3", "--out", str(tmp_path / "run"), "--no-progress"]) != 0
     assert "'ptv3' segments scenes" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
-
-
-@pytest.fixture(scope="module")
-def rooms(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("rooms") / "rooms"
-    make_scenes(root, "room", 3, seed=10, density=0.04)
-    return root
 
 
 @pytest.fixture(scope="module")
