@@ -70,17 +70,23 @@ def mesh_from_volume(volume: TSDFVolume, min_component: float = 0.01) -> Mesh:
     return drop_small_components(mesh, min_component)
 
 
-def drop_small_components(mesh: Mesh, min_fraction: float) -> Mesh:
-    """Keep the connected pieces holding at least ``min_fraction`` of the faces (the largest always)."""
+def face_components(mesh: Mesh) -> np.ndarray:
+    """``(F,)`` the connected piece of each triangle of ``mesh`` (pieces join at shared vertices)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    faces = mesh.faces
+    faces = np.asarray(mesh.faces, np.int64)
     count = len(mesh.points)
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(count, count))
     _, labels = connected_components(graph, directed=False)
-    face_labels = labels[faces[:, 0]]
+    return labels[faces[:, 0]]
+
+
+def drop_small_components(mesh: Mesh, min_fraction: float) -> Mesh:
+    """Keep the connected pieces holding at least ``min_fraction`` of the faces (the largest always)."""
+    faces = mesh.faces
+    face_labels = face_components(mesh)
     sizes = np.bincount(face_labels)
     keep_labels = (sizes >= min_fraction * len(faces)) | (sizes == sizes.max())
     kept_faces = faces[keep_labels[face_labels]]

@@ -89,20 +89,11 @@ def outward_normals(model: NeuralSDF, points: np.ndarray, chunk: int = DENSITY_C
 
 def largest_component(mesh: Mesh) -> tuple[Mesh, int]:
     """The connected piece of ``mesh`` with the most faces, and how many pieces there were."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    from pointfield.geometry.meshes import _compact, face_components  # here: meshes imports this module
 
-    faces = np.asarray(mesh.faces, np.int64)
-    count = len(mesh.points)
-    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(count, count))
-    pieces, labels = connected_components(graph, directed=False)
-    face_labels = labels[faces[:, 0]]
-    kept = faces[face_labels == np.argmax(np.bincount(face_labels))]
-    used, inverse = np.unique(kept.reshape(-1), return_inverse=True)
-    fields = {name: values[used] for name, values in mesh.fields.items()}
-    return Mesh(mesh.points[used], fields, faces=inverse.reshape(kept.shape).astype(np.int64)), int(
-        len(np.unique(face_labels)))
+    face_labels = face_components(mesh)
+    sizes = np.bincount(face_labels)
+    return _compact(mesh, mesh.faces[face_labels == sizes.argmax()]), int(np.count_nonzero(sizes))
 
 
 def mesh_from_sdf(
