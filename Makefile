@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test test-guides lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd clean
+.PHONY: demo test test-guides lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -56,7 +56,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd
+bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -164,6 +164,10 @@ bench-poisson: $(BIN)/.open3d
 # Occupancy maps from the RGB-D living room against OctoMap (pyoctomap) per scan (issue 46)
 bench-occupancy: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_occupancy.py
+
+# A user's own photos with no options: from-images, splat train, nerf train, each within 10 minutes (issue 43)
+bench-photos: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_photos.py
 
 # The GPU path (issue 19): needs a CUDA GPU, so it is not part of `make bench`. A torch build with
 # CUDA goes in first: make bench-gpu TORCH="torch==2.13.0 --index-url https://download.pytorch.org/whl/cu126".

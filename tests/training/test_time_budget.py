@@ -8,15 +8,18 @@ that asked for it says; the clock is the one the command reports (``metrics.json
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import re
+import time
 
 import pytest
 import torch
 
 import pointfield
 from pointfield.cli import main
+from pointfield.cli.training_options import CPU_DEFAULT_MAX_TIME, training_budget
 from pointfield.fields.train import train as train_field
 from pointfield.scenes import heldout, synthetic_scene
 from pointfield.splats.train import train as train_splats
@@ -174,3 +177,20 @@ def test_without_a_time_budget_the_final_evaluation_renders_no_probe():
 
     scores, _ = heldout.HeldoutEvaluation(scene, [0, 1], [0]).final(render, TimeBudget(None))
     assert sizes == [64, 64] and scores["views"] == 2 and "evaluation_downscale" not in scores
+
+
+@pytest.mark.parametrize(("given", "budget"), [
+    ({}, CPU_DEFAULT_MAX_TIME),
+    ({"steps": 100}, None),
+    ({"max_time": 60.0}, 60.0),
+])
+def test_a_cpu_training_without_steps_or_max_time_stops_within_ten_minutes(capsys, given, budget):
+    args = argparse.Namespace(**{"max_time": None, "steps": None, "device": "cpu", **given})
+    args.started = time.perf_counter()
+    left = training_budget(args)
+    said = capsys.readouterr().out
+    if budget is None:
+        assert left is None and said == ""
+    else:
+        assert budget - 1 < left <= budget
+    assert ("--max-time 540" in said) == (not given)

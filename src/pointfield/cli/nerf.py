@@ -18,7 +18,7 @@ from pointfield.cli.geometry_options import (
     refuse_existing,
 )
 from pointfield.cli.scene_options import add_scene_training_options
-from pointfield.cli.training_options import add_max_time_option, clock_text, max_time_left, scores_text
+from pointfield.cli.training_options import add_max_time_option, clock_text, scores_text, training_budget
 from pointfield.cli.view import add_view_options, training_view
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
@@ -134,7 +134,7 @@ def run_train(args: argparse.Namespace) -> int:
         background = [float(value) for value in background.split(",")]
     with training_view(args):
         metrics = train(
-            args.scene, model=args.model, out=args.out, steps=args.steps, max_time=max_time_left(args),
+            args.scene, model=args.model, out=args.out, steps=args.steps, max_time=training_budget(args),
             batch_rays=args.batch_rays, downscale=args.downscale, holdout_every=args.holdout_every,
             background=background, random_background=args.random_background, alpha_loss=args.alpha_loss, distortion=args.distortion, device=args.device, seed=args.seed, resume=args.resume,
             eval_every=args.eval_every, learning_rate=args.learning_rate, progress=args.progress,

@@ -17,7 +17,7 @@ from pointfield.cli.geometry_options import (
     refuse_existing,
 )
 from pointfield.cli.scene_options import add_scene_training_options
-from pointfield.cli.training_options import add_max_time_option, clock_text, max_time_left, scores_text
+from pointfield.cli.training_options import add_max_time_option, clock_text, scores_text, training_budget
 from pointfield.cli.view import add_view_options, training_view
 
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N or mps"
@@ -126,7 +126,7 @@ def run_train(args: argparse.Namespace) -> int:
         background = [float(value) for value in background.split(",")]
     with training_view(args):
         metrics = train(
-            args.scene, out=args.out, steps=args.steps, max_time=max_time_left(args), downscale=args.downscale,
+            args.scene, out=args.out, steps=args.steps, max_time=training_budget(args), downscale=args.downscale,
             holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss,
             opacity_entropy=args.opacity_entropy, flatness=args.flatness, antialiased=args.antialiased,
             screen_dilation=args.screen_dilation, mip=args.mip, depth_distortion=args.depth_distortion,
