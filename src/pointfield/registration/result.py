@@ -103,10 +103,15 @@ def information_matrix(target: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     edges by it.
     """
     q = np.asarray(target, np.float64)[pairs[:, 1]] if len(pairs) else np.zeros((0, 3))
-    jacobian = np.zeros((len(q), 3, 6))
-    jacobian[:, :, :3] = -skew(q)
-    jacobian[:, :, 3:] = np.eye(3)
-    return np.einsum("kij,kil->jl", jacobian, jacobian)
+    # The sum in closed form from the moments of q: [q]_x^T [q]_x = |q|^2 I - q q^T, and the
+    # off-diagonal blocks are [sum q]_x and its transpose (no (K, 3, 6) Jacobians in memory).
+    moment, total = q.T @ q, q.sum(axis=0)
+    information = np.zeros((6, 6))
+    information[:3, :3] = np.trace(moment) * np.eye(3) - moment
+    information[:3, 3:] = skew(total)
+    information[3:, :3] = skew(total).T
+    information[3:, 3:] = len(q) * np.eye(3)
+    return information
 
 
 def skew(v: np.ndarray) -> np.ndarray:
