@@ -281,6 +281,8 @@ OCTOMAP_MAGIC = b"# Octomap OcTree binary file"
 MAX_BT_HEADER = 4096
 READ_BYTES_PER_CELL = 96
 """Bytes a cell costs while a ``.bt``'s leaves are expanded into cells: its leaf index, offsets, key, order."""
+MORE_MEMORY = "give more --memory"
+"""What a reader over its budget advises, unless told otherwise."""
 
 
 def read_octomap(path: str | os.PathLike[str], max_bytes: int | None = None) -> OccupancyMap:
@@ -304,18 +306,19 @@ def read_octomap(path: str | os.PathLike[str], max_bytes: int | None = None) -> 
     return occupancy
 
 
-def read_octomap_grid(path: str | os.PathLike[str], max_bytes: int | None = None) -> VoxelGrid:
+def read_octomap_grid(path: str | os.PathLike[str], max_bytes: int | None = None,
+                      advice: str = MORE_MEMORY) -> VoxelGrid:
     """The occupied cells of an OctoMap ``.bt`` as a :class:`VoxelGrid` (how ``cloud render`` and ``view`` draw it).
 
     As :func:`read_octomap`, but only the occupied leaves are expanded into cells (a pruned map's
     free leaves can stand for far more cells than its obstacles), and ``max_bytes`` counts only
-    those. The grid's origin is the corner of its lowest cell on OctoMap's lattice; it has no
+    those (``advice`` ends the message of a map over it). The grid's origin is the corner of its lowest cell on OctoMap's lattice; it has no
     fields (a ``.bt`` keeps no probabilities) and says ``occupancy: occupied`` in its metadata.
     """
     tree = read_bt_header(Path(path))
     cells = np.zeros((0, 3), np.int64)
     if tree.size:
-        keys, depths, occupied = octree_leaves(tree, max_bytes, occupied_only=True)
+        keys, depths, occupied = octree_leaves(tree, max_bytes, occupied_only=True, advice=advice)
         cells = key_cells(_expand_leaves(keys[occupied], depths[occupied])[0])
     low = cells.min(axis=0) if len(cells) else np.zeros(3, np.int64)
     return VoxelGrid(cells - low, low * tree.resolution, tree.resolution, metadata={"occupancy": "occupied"})
@@ -384,14 +387,14 @@ def _too_deep(path: Path, at: int) -> FormatError:
     return FormatError(path, f"a node at byte {at} has children below OctoMap's {OCTOMAP_DEPTH} levels")
 
 
-def _too_big(path: Path, cells: int, resolution: float, max_bytes: int) -> FormatError:
+def _too_big(path: Path, cells: int, resolution: float, max_bytes: int, advice: str) -> FormatError:
     return FormatError(path, f"its leaves cover at least {cells:,} cells of {resolution:g}, "
                        f"{human_bytes(cells * READ_BYTES_PER_CELL)} to read, more than the "
-                       f"{human_bytes(max_bytes)} allowed (give more --memory)")
+                       f"{human_bytes(max_bytes)} allowed ({advice})")
 
 
-def octree_leaves(tree: BtTree, max_bytes: int | None = None,
-                  occupied_only: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def octree_leaves(tree: BtTree, max_bytes: int | None = None, occupied_only: bool = False,
+                  advice: str = MORE_MEMORY) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The leaves of a ``.bt``'s tree, parsed level by level, without a walk.
 
     Returns ``(keys (L,) int64, depths (L,) int64, occupied (L,) bool)``: the :func:`cell_keys` key
@@ -400,7 +403,7 @@ def octree_leaves(tree: BtTree, max_bytes: int | None = None,
     :func:`octree_leaves_by_walk` (the node-by-node walk of ``OcTree::readBinaryNode``, the
     reference this is tested against) raises, for the same first fault in file order: a tree cut
     short, a node below 16 levels, leaves covering more than ``max_bytes`` (those of occupied
-    leaves only with ``occupied_only``), a node count other than ``size``.
+    leaves only with ``occupied_only``; the message ends with ``advice``), a node count other than ``size``.
 
     The words are the inner nodes in depth-first order, children 0..7. With ``k_i`` the inner
     children of word ``i``, a depth-first reader's stack holds ``S_i = 1 + sum_{j<i} (k_j - 1)``
@@ -460,7 +463,7 @@ def octree_leaves(tree: BtTree, max_bytes: int | None = None,
     if too_deep < total and too_deep <= over:
         raise _too_deep(path, at + 2 * too_deep)
     if over < total:
-        raise _too_big(path, int(cells_of[: over + 1].sum()), resolution, max_bytes)
+        raise _too_big(path, int(cells_of[: over + 1].sum()), resolution, max_bytes, advice)
     nodes_read = 1 + int(CHILDREN[words].sum())
     if not len(empty):
         raise _cut_short(path, at + 2 * count, nodes_read, size)
@@ -469,8 +472,8 @@ def octree_leaves(tree: BtTree, max_bytes: int | None = None,
     return np.concatenate(keys), np.concatenate(depths), np.concatenate(occupied)
 
 
-def octree_leaves_by_walk(tree: BtTree, max_bytes: int | None = None,
-                          occupied_only: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def octree_leaves_by_walk(tree: BtTree, max_bytes: int | None = None, occupied_only: bool = False,
+                          advice: str = MORE_MEMORY) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`octree_leaves` by a walk node by node, as ``OcTree::readBinaryNode`` reads: the slow, obviously
     right reference the fast parse is tested against (leaves in file order)."""
     path, data, at, size, resolution = tree
@@ -501,7 +504,7 @@ def octree_leaves_by_walk(tree: BtTree, max_bytes: int | None = None,
                     cells += 8 ** (OCTOMAP_DEPTH - depth - 1)
         stack.extend(reversed(inner))  # depth first, children in order 0..7
         if max_bytes is not None and cells * READ_BYTES_PER_CELL > max_bytes:
-            raise _too_big(path, cells, resolution, max_bytes)
+            raise _too_big(path, cells, resolution, max_bytes, advice)
     if nodes != size:
         raise FormatError(path, f"the tree has {nodes:,} nodes but the header says {size:,}")
     table = np.asarray(leaves, np.int64).reshape(-1, 5)
