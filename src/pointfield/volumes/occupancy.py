@@ -397,7 +397,7 @@ def octree_leaves(tree: BtTree, max_bytes: int | None = None, occupied_only: boo
                   advice: str = MORE_MEMORY) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The leaves of a ``.bt``'s tree, parsed level by level, without a walk.
 
-    Returns ``(keys (L,) int64, depths (L,) int64, occupied (L,) bool)``: the :func:`cell_keys` key
+    Returns ``(keys (L,) int64, depths (L,) int8, occupied (L,) bool)``: the :func:`cell_keys` key
     of each leaf's lowest cell, its depth (1 .. 16; a leaf at depth ``d`` covers ``2^(16 - d)``
     cells per axis) and its state, in no particular order. Raises what
     :func:`octree_leaves_by_walk` (the node-by-node walk of ``OcTree::readBinaryNode``, the
@@ -411,7 +411,9 @@ def octree_leaves(tree: BtTree, max_bytes: int | None = None, occupied_only: boo
     ``m``-th inner child (``m = 0 .. k_p - 1``) of word ``p`` was pushed at stack slot
     ``S_p - 2 + k_p - m`` and is the first word after ``p`` with ``S = S_p - 1 + k_p - m`` (the
     stack shrinks by at most one a word and the slots below the top are untouched until popped).
-    One sorted search finds every child of a level at once, so the tree is read a level at a time.
+    So a node's first inner child is the word after it, and each next one is the first word after the
+    one before where the stack is one shorter. One sorted search finds every word's next sibling, and
+    the tree is then read a level at a time, in file order within each level.
     """
     path, data, at, size, resolution = tree
     count = (len(data) - at) // 2
@@ -426,34 +428,48 @@ def octree_leaves(tree: BtTree, max_bytes: int | None = None, occupied_only: boo
     before = np.concatenate([[1], after[: total - 1]])  # S_i
     stride = total + 1  # S_i <= 7 total + 1: (S, word) packed in one int64 below 2^63 for any file under 2 GB
     ranked = np.sort(before * stride + np.arange(total))  # the words by (S, word)
+    # The next sibling of word i: the first word after it where the stack is one shorter, S_i - 1 (or none:
+    # total). Asked for every word at once, in the order of ``ranked``, so the questions come sorted too.
+    at_rank = np.minimum(np.searchsorted(ranked, ranked - stride + 1), total - 1)
+    landed = ranked[at_rank]
+    found = landed // stride == ranked // stride - 1
+    next_sibling = np.full(total + 1, total)
+    next_sibling[ranked[found] % stride] = landed[found] % stride
     cells_of = np.zeros(total if max_bytes is not None else 0, np.int64)  # cells each word's leaves add
     keys, depths, occupied = [], [], []
     nodes, prefixes = np.zeros(1, np.int64), np.full(1, OCTOMAP_CORNER, np.int64)
     too_deep = total
     for depth in range(OCTOMAP_DEPTH):
-        kinds = CHILD_KINDS[words[nodes]]  # (n, 8)
+        kinds = CHILD_KINDS[words[nodes]].ravel()  # (n * 8,): node by node, children 0..7
         bit = OCTOMAP_DEPTH - 1 - depth  # the key bit this level's children differ in
-        row, child = np.nonzero((kinds - 1) < 2)  # free or occupied leaves (uint8: unknown wraps to 255)
-        keys.append(prefixes[row] + (CHILD_STEPS[child] << bit))
-        depths.append(np.full(len(row), depth + 1, np.int64))
-        occupied.append(kinds[row, child] == 2)
+        leaves = np.flatnonzero((kinds - 1) < 2)  # free or occupied (uint8: unknown wraps to 255)
+        row = leaves >> 3
+        keys.append(prefixes[row] + (CHILD_STEPS[leaves & 7] << bit))
+        depths.append(np.full(len(leaves), depth + 1, np.int8))
+        occupied.append(kinds[leaves] == 2)
         if max_bytes is not None:
             counted = row[occupied[-1]] if occupied_only else row
             cells_of[nodes] = np.bincount(counted, minlength=len(nodes)) * 8**bit
-        inner = kinds == 3
+        inner = np.flatnonzero(kinds == 3)
         if depth + 1 == OCTOMAP_DEPTH:
-            deep = nodes[inner.any(axis=1)]
-            too_deep = int(deep.min()) if len(deep) else total
+            too_deep = int(nodes[inner[0] >> 3]) if len(inner) else total  # nodes are in file order
             break
-        row, child = np.nonzero(inner)
-        rank = (np.cumsum(inner, axis=1) - 1)[row, child]  # m: which inner child of its parent
-        parent = nodes[row]
-        wanted = (before[parent] - 1 + inner_children[parent] - rank) * stride + parent + 1
-        at_rank = np.minimum(np.searchsorted(ranked, wanted), total - 1)
-        landed = ranked[at_rank]
-        found = (landed >= wanted) & (landed // stride == wanted // stride)  # else it lies past the end of a cut file
-        nodes = landed[found] % stride
-        prefixes = prefixes[row[found]] + (CHILD_STEPS[child[found]] << bit)
+        # A node's first inner child is the word after it, each next one the one before's next sibling.
+        counts = inner_children[nodes]
+        starts = np.cumsum(counts) - counts  # where each node's inner children begin in ``inner``
+        child_words = np.empty(len(inner), np.int64)
+        parents = np.flatnonzero(counts)
+        current = nodes[parents] + 1
+        for rank in range(8):
+            more = counts[parents] > rank
+            parents, current = parents[more], current[more]
+            if not len(parents):
+                break
+            child_words[starts[parents] + rank] = current
+            current = next_sibling[current]
+        present = child_words < total  # else it lies past the end of a cut file
+        nodes = child_words[present]
+        prefixes = prefixes[inner[present] >> 3] + (CHILD_STEPS[inner[present] & 7] << bit)
         if not len(nodes):
             break
     over = total
@@ -542,7 +558,7 @@ def _expand_leaves(keys: np.ndarray, depths: np.ndarray, occupied: np.ndarray) -
     made once and added to every leaf's key. A key less :data:`OCTOMAP_CORNER` fits in 58 bits, so it
     carries its state in a lowest bit through one sort (several times faster than an argsort)."""
     packed = [np.zeros(0, np.int64)]
-    for depth in np.unique(depths):
+    for depth in np.flatnonzero(np.bincount(depths, minlength=OCTOMAP_DEPTH + 1)):
         leaves = np.flatnonzero(depths == depth)
         axis = np.arange(1 << (OCTOMAP_DEPTH - int(depth)), dtype=np.int64)  # cells per axis under such a leaf
         steps = (axis[:, None, None] << (2 * KEY_BITS) | axis[None, :, None] << KEY_BITS | axis[None, None, :]).ravel()
