@@ -4,7 +4,8 @@
 ``pointfield cloud voxelize``    :func:`pointfield.volumes.voxelize_cloud` / ``voxelize_mesh``
 ``pointfield cloud sdf``         :func:`pointfield.volumes.mesh_to_sdf`, then :meth:`~pointfield.volumes.SDFGrid.to_mesh`
 ``pointfield cloud poisson``     :func:`pointfield.volumes.poisson_surface`
-``cloud render X.binvox``        :meth:`pointfield.volumes.VoxelGrid.to_cloud`, drawn as a cloud
+``cloud render X.binvox``        :meth:`pointfield.volumes.VoxelGrid.to_cloud`, drawn as a cloud (an OctoMap
+                                 ``X.bt`` too: its occupied cells, ``read_octomap_grid``)
 ===============================  ==================================================
 """
 
@@ -168,7 +169,8 @@ def run_poisson(args: argparse.Namespace) -> int:
 
 
 def run_render_voxels(args: argparse.Namespace) -> int:
-    """``cloud render`` of a voxel file: its voxel centres, drawn as a cloud with the voxels' fields."""
+    """``cloud render`` of a voxel file (or an OctoMap ``.bt``, its occupied cells): its voxel centres, drawn as a
+    cloud with the voxels' fields."""
     from pointfield.viz.render import render_cloud, save_image
     from pointfield.volumes import read_voxels
 

@@ -1,4 +1,4 @@
-"""Voxel grid files: Patrick Min's ``.binvox``, MagicaVoxel's ``.vox``, and NPZ.
+"""Voxel grid files: Patrick Min's ``.binvox``, MagicaVoxel's ``.vox``, and NPZ; OctoMap's ``.bt`` is read too.
 
 ``.binvox`` (binvox 1, as binvox and binvox-rw-py write it) is a text header then run-length data::
 
@@ -28,6 +28,11 @@ reduced to 255 by PIL's median cut where there are more; no origin or voxel size
 ``field/<name>``, and ``__metadata__`` (JSON). Nothing is unpickled, and each member's size is
 checked against the archive before it is read.
 
+An OctoMap binary tree (``.bt``) reads as the grid of its occupied cells
+(:func:`~pointfield.volumes.occupancy.read_octomap_grid`: pruned leaves expanded into their cells,
+free ones skipped), so that ``cloud render`` and ``view`` draw an occupancy map; it is written by
+:func:`~pointfield.volumes.occupancy.write_octomap`, from an ``OccupancyMap``, not from a grid.
+
 Every reader checks the sizes a file declares against the bytes it has before allocating, and
 raises :class:`~pointfield.errors.FormatError` naming the file. Writes are atomic.
 """
@@ -45,6 +50,7 @@ import numpy as np
 
 from pointfield.atomic import atomic_path
 from pointfield.errors import FormatError
+from pointfield.volumes.occupancy import OCTOMAP_MAGIC, READ_BYTES_PER_CELL, read_octomap_grid
 from pointfield.volumes.voxels import VoxelGrid
 
 SUFFIXES = (".binvox", ".vox", ".npz")
@@ -59,10 +65,11 @@ NPZ_MAX_EXPANSION = 1100
 
 
 def is_voxel_file(path: str | os.PathLike[str]) -> bool:
-    """``.binvox`` and ``.vox`` files, and ``.npz`` archives written by :func:`write_voxels` (by their members)."""
+    """``.binvox``, ``.vox`` and ``.bt`` files, and ``.npz`` archives written by :func:`write_voxels` (by their
+    members)."""
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix in (".binvox", ".vox"):
+    if suffix in (".binvox", ".vox", ".bt"):
         return True
     if suffix == ".npz" and path.is_file():
         try:
@@ -75,20 +82,24 @@ def is_voxel_file(path: str | os.PathLike[str]) -> bool:
 
 
 def read_voxels(path: str | os.PathLike[str]) -> VoxelGrid:
-    """Read a ``.binvox``, ``.vox`` or voxel ``.npz`` file (by its first bytes, else its suffix)."""
+    """Read a ``.binvox``, ``.vox``, voxel ``.npz`` or OctoMap ``.bt`` file (by its first bytes, else its suffix)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
     with open(path, "rb") as file:
-        head = file.read(8)
-    if head.startswith(b"#binvox"):
+        head = file.read(len(OCTOMAP_MAGIC))
+    if head.startswith(OCTOMAP_MAGIC):
+        grid = read_octomap_grid(path, MAX_READ_VOXELS * READ_BYTES_PER_CELL,
+                                 advice=f"pointfield reads at most {MAX_READ_VOXELS:,} voxels of a file")
+    elif head.startswith(b"#binvox"):
         grid = read_binvox(path)
     elif head.startswith(b"VOX "):
         grid = read_vox(path)
     elif head.startswith(b"PK"):
         grid = read_npz(path)
     else:
-        raise FormatError(path, f"not a voxel file: expected '#binvox', 'VOX ' or an NPZ archive, found {head[:8]!r}")
+        raise FormatError(path, f"not a voxel file: expected '#binvox', 'VOX ', an NPZ archive or an OctoMap tree, "
+                          f"found {head[:8]!r}")
     grid.metadata.setdefault("path", str(path))
     return grid
 

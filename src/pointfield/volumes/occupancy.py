@@ -16,7 +16,8 @@ ray longer than ``max_range`` marks free space up to that range and no hit (Octo
 Cells are ``floor(p / size)`` on a lattice through the world origin, as in OctoMap (within
 ``2^20`` cells of it along each axis). The map is sparse: sorted cell keys and their log-odds.
 :func:`write_octomap` writes it as OctoMap's ``.bt``, which OctoMap's tools and pyoctomap read;
-:func:`read_octomap` reads a ``.bt`` back (OctoMap's own, pruned or not).
+:func:`read_octomap` reads a ``.bt`` back (OctoMap's own, pruned or not), a level of the tree at a time,
+and :func:`read_octomap_grid` only its occupied cells, as a :class:`VoxelGrid`.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -279,6 +281,8 @@ OCTOMAP_MAGIC = b"# Octomap OcTree binary file"
 MAX_BT_HEADER = 4096
 READ_BYTES_PER_CELL = 96
 """Bytes a cell costs while a ``.bt``'s leaves are expanded into cells: its leaf index, offsets, key, order."""
+MORE_MEMORY = "give more --memory"
+"""What a reader over its budget advises, unless told otherwise."""
 
 
 def read_octomap(path: str | os.PathLike[str], max_bytes: int | None = None) -> OccupancyMap:
@@ -289,9 +293,49 @@ def read_octomap(path: str | os.PathLike[str], max_bytes: int | None = None) -> 
     last level (OctoMap prunes eight equal children into their parent) stands for all the cells
     below it; their count is checked against ``max_bytes`` (``READ_BYTES_PER_CELL`` each) before they
     are made. A header other than OctoMap's, a tree cut short, or a node count other than the
-    header's ``size`` raise :class:`~pointfield.errors.FormatError` naming the file.
+    header's ``size`` raise :class:`~pointfield.errors.FormatError` naming the file. The tree is
+    parsed without a walk (:func:`octree_leaves`).
     """
-    path = Path(path)
+    tree = read_bt_header(Path(path))
+    occupancy = OccupancyMap(tree.resolution)
+    if tree.size == 0:
+        return occupancy
+    keys, depths, occupied = octree_leaves(tree, max_bytes)
+    occupancy.keys, occupied = _expand_leaves(keys, depths, occupied)
+    occupancy.log_odds = np.where(occupied, np.float32(CLAMP[1]), np.float32(CLAMP[0]))
+    return occupancy
+
+
+def read_octomap_grid(path: str | os.PathLike[str], max_bytes: int | None = None,
+                      advice: str = MORE_MEMORY) -> VoxelGrid:
+    """The occupied cells of an OctoMap ``.bt`` as a :class:`VoxelGrid` (how ``cloud render`` and ``view`` draw it).
+
+    As :func:`read_octomap`, but only the occupied leaves are expanded into cells (a pruned map's
+    free leaves can stand for far more cells than its obstacles), and ``max_bytes`` counts only
+    those (``advice`` ends the message of a map over it). The grid's origin is the corner of its lowest cell on OctoMap's lattice; it has no
+    fields (a ``.bt`` keeps no probabilities) and says ``occupancy: occupied`` in its metadata.
+    """
+    tree = read_bt_header(Path(path))
+    cells = np.zeros((0, 3), np.int64)
+    if tree.size:
+        keys, depths, occupied = octree_leaves(tree, max_bytes, occupied_only=True, advice=advice)
+        cells = key_cells(_expand_leaves(keys[occupied], depths[occupied], occupied[occupied])[0])
+    low = cells.min(axis=0) if len(cells) else np.zeros(3, np.int64)
+    return VoxelGrid(cells - low, low * tree.resolution, tree.resolution, metadata={"occupancy": "occupied"})
+
+
+class BtTree(NamedTuple):
+    """A ``.bt`` file's bytes with what its header says: the tree's child words start at byte ``at``."""
+
+    path: Path
+    data: bytes
+    at: int
+    size: int
+    resolution: float
+
+
+def read_bt_header(path: Path) -> BtTree:
+    """Read a ``.bt`` and check its header: OctoMap's first line, ``id OcTree``, numeric ``size`` and ``res``."""
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
     data = path.read_bytes()
@@ -318,17 +362,144 @@ def read_octomap(path: str | os.PathLike[str], max_bytes: int | None = None) -> 
         raise FormatError(path, "the header needs numeric 'size' and 'res' lines") from None
     if not (resolution > 0 and np.isfinite(resolution)) or size < 0:
         raise FormatError(path, f"the header's 'res' must be positive and 'size' not negative, got {resolution}, {size}")
-    occupancy = OccupancyMap(resolution)
-    if size == 0:
-        return occupancy
-    leaves: list[tuple[int, int, int, int, bool]] = []  # (x, y, z) key prefix, depth, occupied
+    return BtTree(path, data, at, size, resolution)
+
+
+OCTOMAP_CORNER = int(cell_keys(np.full((1, 3), -OCTOMAP_OFFSET))[0])
+"""The :func:`cell_keys` key of OctoMap's key (0, 0, 0): OctoMap key ``k`` is our cell ``k - 2^15``, and since our
+keys pack x, y, z in 21-bit fields, the key of OctoMap key ``(x, y, z)`` is this plus ``x << 42 | y << 21 | z``."""
+CHILD_STEPS = np.array([(i & 1) << (2 * KEY_BITS) | (i >> 1 & 1) << KEY_BITS | (i >> 2 & 1) for i in range(8)], np.int64)
+"""Child ``i``'s step in packed keys (OctoMap's ``computeChildIdx``: x is bit 0 of ``i``, y bit 1, z bit 2)."""
+CHILD_KINDS = (np.arange(1 << 16)[:, None] >> (2 * np.arange(8)) & 3).astype(np.uint8)
+"""``(65536, 8)``: per 16-bit child word, each child's 2 bits (0 unknown, 1 free, 2 occupied, 3 inner)."""
+INNER_CHILDREN = (CHILD_KINDS == 3).sum(axis=1)
+"""Per child word, how many of its children are inner nodes."""
+CHILDREN = (CHILD_KINDS != 0).sum(axis=1)
+"""Per child word, how many children it has (leaves and inner nodes)."""
+
+
+def _cut_short(path: Path, at: int, nodes: int, size: int) -> FormatError:
+    return FormatError(path, f"the tree is cut short at byte {at}: {nodes:,} of the header's {size:,} nodes read "
+                       "(a truncated file?)")
+
+
+def _too_deep(path: Path, at: int) -> FormatError:
+    return FormatError(path, f"a node at byte {at} has children below OctoMap's {OCTOMAP_DEPTH} levels")
+
+
+def _too_big(path: Path, cells: int, resolution: float, max_bytes: int, advice: str) -> FormatError:
+    return FormatError(path, f"its leaves cover at least {cells:,} cells of {resolution:g}, "
+                       f"{human_bytes(cells * READ_BYTES_PER_CELL)} to read, more than the "
+                       f"{human_bytes(max_bytes)} allowed ({advice})")
+
+
+def octree_leaves(tree: BtTree, max_bytes: int | None = None, occupied_only: bool = False,
+                  advice: str = MORE_MEMORY) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The leaves of a ``.bt``'s tree, parsed level by level, without a walk.
+
+    Returns ``(keys (L,) int64, depths (L,) int8, occupied (L,) bool)``: the :func:`cell_keys` key
+    of each leaf's lowest cell, its depth (1 .. 16; a leaf at depth ``d`` covers ``2^(16 - d)``
+    cells per axis) and its state, in no particular order. Raises what
+    :func:`octree_leaves_by_walk` (the node-by-node walk of ``OcTree::readBinaryNode``, the
+    reference this is tested against) raises, for the same first fault in file order: a tree cut
+    short, a node below 16 levels, leaves covering more than ``max_bytes`` (those of occupied
+    leaves only with ``occupied_only``; the message ends with ``advice``), a node count other than ``size``.
+
+    The words are the inner nodes in depth-first order, children 0..7. With ``k_i`` the inner
+    children of word ``i``, a depth-first reader's stack holds ``S_i = 1 + sum_{j<i} (k_j - 1)``
+    nodes before it pops word ``i``; the tree ends at the first word after which it is empty. The
+    ``m``-th inner child (``m = 0 .. k_p - 1``) of word ``p`` was pushed at stack slot
+    ``S_p - 2 + k_p - m`` and is the first word after ``p`` with ``S = S_p - 1 + k_p - m`` (the
+    stack shrinks by at most one a word and the slots below the top are untouched until popped).
+    So a node's first inner child is the word after it, and each next one is the first word after the
+    one before where the stack is one shorter. One sorted search finds every word's next sibling, and
+    the tree is then read a level at a time, in file order within each level.
+    """
+    path, data, at, size, resolution = tree
+    count = (len(data) - at) // 2
+    if count == 0:
+        raise _cut_short(path, at, 1, size)
+    words = np.frombuffer(data, "<u2", count=count, offset=at)
+    inner_children = INNER_CHILDREN[words]
+    after = np.cumsum(inner_children - 1) + 1  # the stack's size after each word
+    empty = np.flatnonzero(after == 0)
+    total = int(empty[0]) + 1 if len(empty) else count
+    words, inner_children = words[:total], inner_children[:total]
+    before = np.concatenate([[1], after[: total - 1]])  # S_i
+    stride = total + 1  # S_i <= 7 total + 1: (S, word) packed in one int64 below 2^63 for any file under 2 GB
+    ranked = np.sort(before * stride + np.arange(total))  # the words by (S, word)
+    # The next sibling of word i: the first word after it where the stack is one shorter, S_i - 1 (or none:
+    # total). Asked for every word at once, in the order of ``ranked``, so the questions come sorted too.
+    at_rank = np.minimum(np.searchsorted(ranked, ranked - stride + 1), total - 1)
+    landed = ranked[at_rank]
+    found = landed // stride == ranked // stride - 1
+    next_sibling = np.full(total + 1, total)
+    next_sibling[ranked[found] % stride] = landed[found] % stride
+    cells_of = np.zeros(total if max_bytes is not None else 0, np.int64)  # cells each word's leaves add
+    keys, depths, occupied = [], [], []
+    nodes, prefixes = np.zeros(1, np.int64), np.full(1, OCTOMAP_CORNER, np.int64)
+    too_deep = total
+    for depth in range(OCTOMAP_DEPTH):
+        kinds = CHILD_KINDS[words[nodes]].ravel()  # (n * 8,): node by node, children 0..7
+        bit = OCTOMAP_DEPTH - 1 - depth  # the key bit this level's children differ in
+        leaves = np.flatnonzero((kinds - 1) < 2)  # free or occupied (uint8: unknown wraps to 255)
+        row = leaves >> 3
+        keys.append(prefixes[row] + (CHILD_STEPS[leaves & 7] << bit))
+        depths.append(np.full(len(leaves), depth + 1, np.int8))
+        occupied.append(kinds[leaves] == 2)
+        if max_bytes is not None:
+            counted = row[occupied[-1]] if occupied_only else row
+            cells_of[nodes] = np.bincount(counted, minlength=len(nodes)) * 8**bit
+        inner = np.flatnonzero(kinds == 3)
+        if depth + 1 == OCTOMAP_DEPTH:
+            too_deep = int(nodes[inner[0] >> 3]) if len(inner) else total  # nodes are in file order
+            break
+        # A node's first inner child is the word after it, each next one the one before's next sibling.
+        counts = inner_children[nodes]
+        starts = np.cumsum(counts) - counts  # where each node's inner children begin in ``inner``
+        child_words = np.empty(len(inner), np.int64)
+        parents = np.flatnonzero(counts)
+        current = nodes[parents] + 1
+        for rank in range(8):
+            more = counts[parents] > rank
+            parents, current = parents[more], current[more]
+            if not len(parents):
+                break
+            child_words[starts[parents] + rank] = current
+            current = next_sibling[current]
+        present = child_words < total  # else it lies past the end of a cut file
+        nodes = child_words[present]
+        prefixes = prefixes[inner[present] >> 3] + (CHILD_STEPS[inner[present] & 7] << bit)
+        if not len(nodes):
+            break
+    over = total
+    if max_bytes is not None:
+        exceeded = np.flatnonzero(np.cumsum(cells_of) * READ_BYTES_PER_CELL > max_bytes)
+        over = int(exceeded[0]) if len(exceeded) else total
+    if too_deep < total and too_deep <= over:
+        raise _too_deep(path, at + 2 * too_deep)
+    if over < total:
+        raise _too_big(path, int(cells_of[: over + 1].sum()), resolution, max_bytes, advice)
+    nodes_read = 1 + int(CHILDREN[words].sum())
+    if not len(empty):
+        raise _cut_short(path, at + 2 * count, nodes_read, size)
+    if nodes_read != size:
+        raise FormatError(path, f"the tree has {nodes_read:,} nodes but the header says {size:,}")
+    return np.concatenate(keys), np.concatenate(depths), np.concatenate(occupied)
+
+
+def octree_leaves_by_walk(tree: BtTree, max_bytes: int | None = None, occupied_only: bool = False,
+                          advice: str = MORE_MEMORY) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`octree_leaves` by a walk node by node, as ``OcTree::readBinaryNode`` reads: the slow, obviously
+    right reference the fast parse is tested against (leaves in file order)."""
+    path, data, at, size, resolution = tree
+    leaves: list[tuple[int, int, int, int, bool]] = []  # (x, y, z) OctoMap key, depth, occupied
     nodes, cells = 1, 0
     stack = [(0, 0, 0, 0)]  # the nodes with children still to read, in file order: key prefix and depth
     while stack:
         x, y, z, depth = stack.pop()
         if at + 2 > len(data):
-            raise FormatError(path, f"the tree is cut short at byte {at}: {nodes:,} of the header's {size:,} "
-                              "nodes read (a truncated file?)")
+            raise _cut_short(path, at, nodes, size)
         bits = data[at] | data[at + 1] << 8
         at += 2
         inner = []
@@ -341,29 +512,57 @@ def read_octomap(path: str | os.PathLike[str], max_bytes: int | None = None) -> 
             key = (x | (child & 1) << bit, y | (child >> 1 & 1) << bit, z | (child >> 2 & 1) << bit, depth + 1)
             if kind == 3:
                 if depth + 1 == OCTOMAP_DEPTH:
-                    raise FormatError(path, f"a node at byte {at - 2} has children below OctoMap's {OCTOMAP_DEPTH} "
-                                      "levels")
+                    raise _too_deep(path, at - 2)
                 inner.append(key)
             else:
                 leaves.append((*key, kind == 2))
-                cells += 8 ** (OCTOMAP_DEPTH - depth - 1)
+                if kind == 2 or not occupied_only:
+                    cells += 8 ** (OCTOMAP_DEPTH - depth - 1)
         stack.extend(reversed(inner))  # depth first, children in order 0..7
         if max_bytes is not None and cells * READ_BYTES_PER_CELL > max_bytes:
-            raise FormatError(path, f"its leaves cover at least {cells:,} cells of {resolution:g}, "
-                              f"{human_bytes(cells * READ_BYTES_PER_CELL)} to read, more than the "
-                              f"{human_bytes(max_bytes)} allowed (give more --memory)")
+            raise _too_big(path, cells, resolution, max_bytes, advice)
     if nodes != size:
         raise FormatError(path, f"the tree has {nodes:,} nodes but the header says {size:,}")
     table = np.asarray(leaves, np.int64).reshape(-1, 5)
-    span = 1 << (OCTOMAP_DEPTH - table[:, 3])  # cells per axis under each leaf
+    return cell_keys(table[:, :3] - OCTOMAP_OFFSET), table[:, 3], table[:, 4].astype(bool)
+
+
+def read_octomap_by_walk(path: str | os.PathLike[str], max_bytes: int | None = None) -> OccupancyMap:
+    """:func:`read_octomap` as it was before it parsed a level at a time: the tree walked node by node
+    (:func:`octree_leaves_by_walk`), each leaf's cells made by index arithmetic and the keys argsorted. The
+    reference the fast reader is tested and benchmarked against; the map is the same, byte for byte."""
+    tree = read_bt_header(Path(path))
+    occupancy = OccupancyMap(tree.resolution)
+    if tree.size == 0:
+        return occupancy
+    keys, depths, occupied = octree_leaves_by_walk(tree, max_bytes)
+    span = 1 << (OCTOMAP_DEPTH - depths)  # cells per axis under each leaf
     counts = span**3
-    owner = np.repeat(np.arange(len(table)), counts)
+    owner = np.repeat(np.arange(len(keys)), counts)
     first = np.cumsum(counts) - counts
     local = np.arange(int(counts.sum()), dtype=np.int64) - first[owner]
     side = span[owner]
     offset = np.stack([local % side, local // side % side, local // (side * side)], axis=1)
-    keys = cell_keys(table[owner, :3] + offset - OCTOMAP_OFFSET)
-    order = np.argsort(keys)
-    occupancy.keys = keys[order]
-    occupancy.log_odds = np.where(table[owner, 4].astype(bool), CLAMP[1], CLAMP[0]).astype(np.float32)[order]
+    cells = cell_keys(key_cells(keys)[owner] + offset)
+    order = np.argsort(cells)
+    occupancy.keys = cells[order]
+    occupancy.log_odds = np.where(occupied[owner], CLAMP[1], CLAMP[0]).astype(np.float32)[order]
     return occupancy
+
+
+def _expand_leaves(keys: np.ndarray, depths: np.ndarray, occupied: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(cells, occupied)``: the sorted keys of the cells under leaves whose lowest cells have ``keys`` ``(L,)``,
+    at ``depths`` ``(L,)`` (a leaf at the last level is its one cell), and each cell's leaf's ``occupied``.
+
+    The leaves of one depth all cover the same block of ``span^3`` cells: its steps in packed keys are
+    made once and added to every leaf's key. A key less :data:`OCTOMAP_CORNER` fits in 58 bits, so it
+    carries its state in a lowest bit through one sort (several times faster than an argsort)."""
+    packed = [np.zeros(0, np.int64)]
+    for depth in np.flatnonzero(np.bincount(depths, minlength=OCTOMAP_DEPTH + 1)):
+        leaves = np.flatnonzero(depths == depth)
+        axis = np.arange(1 << (OCTOMAP_DEPTH - int(depth)), dtype=np.int64)  # cells per axis under such a leaf
+        steps = (axis[:, None, None] << (2 * KEY_BITS) | axis[None, :, None] << KEY_BITS | axis[None, None, :]).ravel()
+        first = (keys[leaves] - OCTOMAP_CORNER) << 1 | occupied[leaves]
+        packed.append((first[:, None] + (steps << 1)).ravel())
+    cells = np.sort(np.concatenate(packed))
+    return (cells >> 1) + OCTOMAP_CORNER, (cells & 1).astype(bool)
