@@ -98,7 +98,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description="Draw a cloud or mesh from an oblique viewpoint, coloured by its colours, "
         "else its intensity, else its height, and save it as PNG.",
     )
-    render.add_argument("file", type=Path, help="a point-cloud, mesh or voxel file (.binvox, .vox, voxel .npz, OctoMap .bt)")
+    render.add_argument("file", type=Path,
+                        help="a point-cloud, mesh or voxel file (.binvox, .vox, voxel .npz, OctoMap .bt)")
     render.add_argument(
         "--out", type=Path, help="PNG to write (default: FILE's name with .png, here)"
     )
