@@ -46,7 +46,7 @@ def pointfield(*arguments: str) -> tuple[float, str]:
     """
     command = [sys.executable, "-m", "pointfield", *arguments]
     started = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
+    done = subprocess.run(command, check=False, capture_output=True, text=True, cwd=ROOT)
     seconds = time.perf_counter() - started
     if done.returncode != 0:
         raise SystemExit(f"`pointfield {' '.join(arguments)}` failed ({done.returncode}):\n{done.stdout}\n{done.stderr}")
@@ -66,6 +66,7 @@ def main() -> int:
                         help="which trainings to run after posing (default both)")
     parser.add_argument("--out", type=Path, default=Path("bench-output/photos"))
     args = parser.parse_args()
+    args.out = args.out.resolve()  # the commands run in the repository's root
     if not args.photos.is_dir():
         print(f"the photos are absent ({args.photos}); nothing to run", file=sys.stderr)
         return 1
