@@ -48,7 +48,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                             "(default 0.1; 0: off)")
     train.add_argument("--opacity-entropy", type=float, default=None, metavar="WEIGHT",
                        help="weight of the splats' mean opacity entropy in the loss: splats opaque or gone, "
-                            "for geometry export (default off; 0.1 measured, see docs/geometry.md)")
+                            "no faint splats mottling surfaces seen from nearer (default 0.1; 0: off)")
     train.add_argument("--flatness", type=float, default=None, metavar="WEIGHT",
                        help="weight of the splats' mean smallest scale in the loss: discs along surfaces, "
                             "for geometry export (default off; 1 measured)")
@@ -57,13 +57,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                             "layer, for geometry export (default off; 100 measured, see docs/geometry.md)")
     train.add_argument("--antialiased", action="store_true",
                        help="rasterize in gsplat's antialiased mode (Mip-Splatting's 2D filter): outlines "
-                            "where they are, for geometry export (default: classic 3DGS)")
+                            "where they are (on with --mip, the default; with --no-mip default classic 3DGS)")
     train.add_argument("--screen-dilation", type=float, default=None, metavar="PX2",
-                       help="variance in px^2 added to every splat's screen footprint (default 0.3 as 3DGS; "
-                            "Mip-Splatting's 0.1 with --antialiased draws outlines closer, see docs/geometry.md)")
-    train.add_argument("--mip", action="store_true",
+                       help="variance in px^2 added to every splat's screen footprint (default 0.1 as "
+                            "Mip-Splatting's 2D filter; with --no-mip 0.3 as 3DGS, see docs/geometry.md)")
+    train.add_argument("--mip", action=argparse.BooleanOptionalAction, default=None,
                        help="Mip-Splatting's 3D smoothing and 2D mip filters: splats that hold up closer than "
-                            "the training cameras (implies --antialiased, dilation 0.1 px^2)")
+                            "the training cameras (implies --antialiased, dilation 0.1 px^2; default on, "
+                            "--no-mip: classic 3DGS)")
     train.add_argument("--max-splats", type=int, default=DEFAULT_MAX_SPLATS,
                        help=f"densification never grows beyond this many splats (default {DEFAULT_MAX_SPLATS:,})")
     train.add_argument("--initial-splats", type=int, default=20_000,

@@ -106,6 +106,12 @@ LEARNING_RATES = {
     "sh_rest": 2.5e-3 / 20,
 }
 FINAL_MEANS_LEARNING_RATE_FRACTION = 0.01
+DEFAULT_MIP = True
+"""Mip-Splatting's filters are on by default: from 0.65x the training distance the cube of
+``make bench-near`` scores 2.5 dB better with them, and at the training distance no worse (docs/splats.md)."""
+DEFAULT_OPACITY_ENTROPY = 0.1
+"""The opacity entropy term's default weight: splats opaque or gone, no faint random-start splats
+mottling the faces seen from nearer (docs/splats.md)."""
 DEPTH_DISTORTION_FROM = 1000
 """The step from which the depth distortion (when asked for) is on: 2DGS starts it late too, once
 densification has put splats where the surfaces are."""
@@ -157,6 +163,9 @@ class SplatTask(Task):
 
     @classmethod
     def configure(cls, settings: dict[str, Any]) -> dict[str, Any]:
+        # The defaults of a new run; a resumed run keeps its own config.json (the lifecycle), and
+        # one made before these defaults, without the keys, keeps training and rendering without them.
+        mip = DEFAULT_MIP if settings.get("mip") is None else bool(settings["mip"])
         config = {
             "task": TASK,
             **scene_config(settings),
@@ -168,14 +177,15 @@ class SplatTask(Task):
             "eval_every": int(settings["eval_every"] or 250),
             "eval_views": int(settings["eval_views"]),
             "alpha_loss": settings.get("alpha_loss"),
-            "opacity_entropy": settings.get("opacity_entropy"),
+            "opacity_entropy": float(DEFAULT_OPACITY_ENTROPY if settings.get("opacity_entropy") is None
+                                     else settings["opacity_entropy"]),
             "flatness": settings.get("flatness"),
-            # Mip-Splatting's filters: the 3D one (pointfield.splats.mip) and, as its 2D one, the
-            # antialiased mode with a 0.1 px^2 dilation unless another dilation is asked for.
-            "mip": bool(settings.get("mip")),
-            "antialiased": bool(settings.get("antialiased") or settings.get("mip")),
+            # Mip-Splatting's filters (on unless turned off): the 3D one (pointfield.splats.mip) and,
+            # as its 2D one, the antialiased mode with a 0.1 px^2 dilation unless another is asked for.
+            "mip": mip,
+            "antialiased": bool(settings.get("antialiased") or mip),
             "screen_dilation": float(settings["screen_dilation"] if settings.get("screen_dilation") is not None
-                                     else MIP_DILATION if settings.get("mip") else SCREEN_DILATION),
+                                     else MIP_DILATION if mip else SCREEN_DILATION),
             "depth_distortion": settings.get("depth_distortion"),
             "strategy": settings.get("strategy") or "default",
         }
@@ -352,7 +362,7 @@ def train(
     flatness: float | None = None,
     antialiased: bool = False,
     screen_dilation: float | None = None,
-    mip: bool = False,
+    mip: bool | None = None,
     depth_distortion: float | None = None,
     device: str | None = None,
     seed: int = 0,
@@ -379,13 +389,16 @@ def train(
     mean absolute difference between rendered opacity and the images' alpha, added to the loss
     where the images have alpha (default 0.1; 0 turns it off). ``opacity_entropy``, ``flatness``
     and ``depth_distortion``: weights of the
-    geometry terms of :mod:`pointfield.splats.loss` (default off; ``GEOMETRY_WEIGHTS`` there are
+    geometry terms of :mod:`pointfield.splats.loss` (the opacity entropy 0.1 by default,
+    :data:`DEFAULT_OPACITY_ENTROPY`, 0 turns it off; the others off; ``GEOMETRY_WEIGHTS`` there are
     the ones measured). ``antialiased``: train (and render) in the rasterizer's antialiased mode;
     ``screen_dilation``: the variance in px^2 added to every splat's screen footprint (default
-    0.3, :data:`~pointfield.splats.rasterizer.SCREEN_DILATION`; Mip-Splatting's filter is 0.1).
-    ``mip``: Mip-Splatting's filters (:mod:`pointfield.splats.mip`): each splat's 3D smoothing
-    filter from the training cameras, and the antialiased mode with a 0.1 px^2 dilation as the 2D
-    mip filter, so that the splats hold up closer than they were trained. ``strategy``: how
+    0.1 with the mip filters, else 0.3, :data:`~pointfield.splats.rasterizer.SCREEN_DILATION`).
+    ``mip`` (default True, :data:`DEFAULT_MIP`; False turns it off): Mip-Splatting's filters
+    (:mod:`pointfield.splats.mip`): each splat's 3D smoothing filter from the training cameras, and
+    the antialiased mode with a 0.1 px^2 dilation as the 2D mip filter, so that the splats hold up
+    closer than they were trained. A run made before these defaults keeps what it was trained
+    with (no filters, no entropy term) when resumed or loaded. ``strategy``: how
     splats are added and removed, "default" (3DGS's cloning, splitting and pruning) or "mcmc"
     (3DGS-MCMC: dead splats relocated, the count grown to ``max_splats``), see
     :mod:`pointfield.splats.densification`. Resuming, only ``steps`` and ``max_splats`` may
