@@ -122,13 +122,23 @@ def test_train_writes_a_run_and_resumes_it(tiny_scene, tmp_path):
 
 def test_new_runs_default_to_the_mip_filters_and_the_entropy_term_and_older_runs_keep_theirs(tiny_scene, tmp_path):
     import pointfield
+    from pointfield.scenes.heldout import training_and_heldout
+    from pointfield.splats.mip import SMOOTHING, training_smoothing
+    from pointfield.splats.train import DEFAULT_MIP_SMOOTHING
 
     out = tmp_path / "new"
     train(tiny_scene, out=out, steps=2, eval_every=2, initial_splats=100, progress=False)
     config = json.loads((out / "config.json").read_text())
     assert (config["mip"], config["opacity_entropy"], config["antialiased"], config["screen_dilation"]) == (
         True, 0.1, True, 0.1)
+    assert config["mip_smoothing"] == DEFAULT_MIP_SMOOTHING
     assert pointfield.load_run(out, "cpu").gaussians.smoothing is not None
+    # A mip run made before the 3D filter's strength was recorded was trained with Mip-Splatting's 0.2.
+    del config["mip_smoothing"]
+    (out / "config.json").write_text(json.dumps(config))
+    run = pointfield.load_run(out, "cpu")
+    expected = training_smoothing(run.gaussians, run.scene.cameras[training_and_heldout(run.scene)[0]], SMOOTHING)
+    assert float(expected.min()) > 0 and torch.equal(run.gaussians.smoothing, expected)
     # A run made before the defaults has none of their keys: resumed and loaded, it stays as trained.
     for key in ("mip", "opacity_entropy", "antialiased", "screen_dilation"):
         del config[key]
@@ -272,3 +282,9 @@ def test_depth_distortion_of_rendered_layers_grows_with_their_gap():
     # covers fewer pixels).
     assert distortion(0.2) == pytest.approx(4 * distortion(0.1), rel=0.05)
     assert distortion(0.1) > 0
+
+
+def test_a_negative_3d_filter_strength_is_refused_before_training(tmp_path):
+    with pytest.raises(PointfieldError, match="--mip-smoothing must be a number >= 0"):
+        train(None, out=tmp_path / "run", mip_smoothing=-0.1, steps=1, progress=False)
+    assert not (tmp_path / "run").exists()

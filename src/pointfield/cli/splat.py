@@ -65,6 +65,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                        help="Mip-Splatting's 3D smoothing and 2D mip filters: splats that hold up closer than "
                             "the training cameras (implies --antialiased, dilation 0.1 px^2; default on, "
                             "--no-mip: classic 3DGS)")
+    train.add_argument("--mip-smoothing", type=float, default=None, metavar="S",
+                       help="strength of the 3D filter: variance in squared training-pixel footprints "
+                            "(default 0; Mip-Splatting's 0.2, see docs/splats.md)")
     train.add_argument("--max-splats", type=int, default=DEFAULT_MAX_SPLATS,
                        help=f"densification never grows beyond this many splats (default {DEFAULT_MAX_SPLATS:,})")
     train.add_argument("--initial-splats", type=int, default=20_000,
@@ -130,7 +133,8 @@ def run_train(args: argparse.Namespace) -> int:
             args.scene, out=args.out, steps=args.steps, max_time=max_time_left(args), downscale=args.downscale,
             holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss,
             opacity_entropy=args.opacity_entropy, flatness=args.flatness, antialiased=args.antialiased,
-            screen_dilation=args.screen_dilation, mip=args.mip, depth_distortion=args.depth_distortion,
+            screen_dilation=args.screen_dilation, mip=args.mip, mip_smoothing=args.mip_smoothing,
+            depth_distortion=args.depth_distortion,
             device=args.device,
             seed=args.seed,
             resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,

@@ -76,7 +76,7 @@ from pointfield.splats.loss import (
     opacity_entropy,
     splat_loss,
 )
-from pointfield.splats.mip import MIP_DILATION, REFRESH_EVERY, drawn, training_smoothing
+from pointfield.splats.mip import MIP_DILATION, REFRESH_EVERY, SMOOTHING, drawn, training_smoothing
 from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization, rasterizer_mode
 from pointfield.splats.run import (
     TASK,
@@ -109,6 +109,11 @@ FINAL_MEANS_LEARNING_RATE_FRACTION = 0.01
 DEFAULT_MIP = True
 """Mip-Splatting's filters are on by default: from 0.65x the training distance the cube of
 ``make bench-near`` scores 2.5 dB better with them, and at the training distance no worse (docs/splats.md)."""
+DEFAULT_MIP_SMOOTHING = 0.0
+"""The 3D filter's strength ``s`` for new runs (:mod:`pointfield.splats.mip`; Mip-Splatting's is 0.2):
+none. On ``make bench-near``'s cube (same run, 600 steps) every distance scored best without it:
+held out 31.56 / 30.30 dB, from 0.65x 26.30 / 24.57, from 1.3x 33.38 / 32.27, turntable 28.88 /
+26.70 (s = 0 / 0.2; 0.05 and 0.1 in between, in order). The 2D mip filter stays (docs/splats.md)."""
 DEFAULT_OPACITY_ENTROPY = 0.1
 """The opacity entropy term's default weight: splats opaque or gone, no faint random-start splats
 mottling the faces seen from nearer (docs/splats.md)."""
@@ -183,6 +188,8 @@ class SplatTask(Task):
             # Mip-Splatting's filters (on unless turned off): the 3D one (pointfield.splats.mip) and,
             # as its 2D one, the antialiased mode with a 0.1 px^2 dilation unless another is asked for.
             "mip": mip,
+            "mip_smoothing": float(DEFAULT_MIP_SMOOTHING if settings.get("mip_smoothing") is None
+                                   else settings["mip_smoothing"]),
             "antialiased": bool(settings.get("antialiased") or mip),
             "screen_dilation": float(settings["screen_dilation"] if settings.get("screen_dilation") is not None
                                      else MIP_DILATION if mip else SCREEN_DILATION),
@@ -191,6 +198,8 @@ class SplatTask(Task):
         }
         if min(config["steps"], config["max_splats"], config["initial_splats"], config["eval_every"]) < 1:
             raise PointfieldError("--steps, --max-splats and --eval-every must be positive")
+        if not (math.isfinite(config["mip_smoothing"]) and config["mip_smoothing"] >= 0):
+            raise PointfieldError(f"--mip-smoothing must be a number >= 0, got {config['mip_smoothing']}")
         if not (math.isfinite(config["screen_dilation"]) and config["screen_dilation"] > 0):
             raise PointfieldError(f"--screen-dilation must be a positive number of px^2, got {config['screen_dilation']}")
         if config["strategy"] not in STRATEGIES:
@@ -304,7 +313,8 @@ class SplatTask(Task):
 
     def _refresh_smoothing(self) -> None:
         """Recompute Mip-Splatting's 3D filter from the training cameras (:mod:`pointfield.splats.mip`)."""
-        self.model.smoothing = training_smoothing(self.model, self.scene.cameras[self.train_frames])
+        self.model.smoothing = training_smoothing(self.model, self.scene.cameras[self.train_frames],
+                                                  float(self.config.get("mip_smoothing", SMOOTHING)))
 
     def _render_with_squared_depth(self, view: int):
         """Render training ``view`` with a fourth colour channel: each splat's squared camera z,
@@ -363,6 +373,7 @@ def train(
     antialiased: bool = False,
     screen_dilation: float | None = None,
     mip: bool | None = None,
+    mip_smoothing: float | None = None,
     depth_distortion: float | None = None,
     device: str | None = None,
     seed: int = 0,
@@ -397,8 +408,9 @@ def train(
     ``mip`` (default True, :data:`DEFAULT_MIP`; False turns it off): Mip-Splatting's filters
     (:mod:`pointfield.splats.mip`): each splat's 3D smoothing filter from the training cameras, and
     the antialiased mode with a 0.1 px^2 dilation as the 2D mip filter, so that the splats hold up
-    closer than they were trained. A run made before these defaults keeps what it was trained
-    with (no filters, no entropy term) when resumed or loaded. ``strategy``: how
+    closer than they were trained. ``mip_smoothing``: the 3D filter's strength ``s`` (default
+    :data:`DEFAULT_MIP_SMOOTHING`; Mip-Splatting's is 0.2). A run made before these defaults keeps what it was trained
+    with (no filters, no entropy term; a mip run, ``s`` = 0.2) when resumed or loaded. ``strategy``: how
     splats are added and removed, "default" (3DGS's cloning, splitting and pruning) or "mcmc"
     (3DGS-MCMC: dead splats relocated, the count grown to ``max_splats``), see
     :mod:`pointfield.splats.densification`. Resuming, only ``steps`` and ``max_splats`` may
@@ -408,7 +420,8 @@ def train(
         "scene": scene, "steps": steps, "downscale": downscale, "holdout_every": holdout_every,
         "background": background, "alpha_loss": alpha_loss, "opacity_entropy": opacity_entropy,
         "flatness": flatness, "antialiased": antialiased,
-        "screen_dilation": screen_dilation, "mip": mip, "depth_distortion": depth_distortion, "seed": seed,
+        "screen_dilation": screen_dilation, "mip": mip, "mip_smoothing": mip_smoothing,
+        "depth_distortion": depth_distortion, "seed": seed,
         "max_splats": max_splats, "initial_splats": initial_splats, "init": init, "strategy": strategy,
         "eval_every": eval_every, "eval_views": eval_views, "cube_views": cube_views, "cube_size": cube_size,
     }
