@@ -120,7 +120,7 @@ def test_train_writes_a_run_and_resumes_it(tiny_scene, tmp_path):
         train(tiny_scene, out=out, steps=3, progress=False)
 
 
-def test_new_runs_default_to_the_mip_filters_and_the_entropy_term_and_older_runs_keep_theirs(tiny_scene, tmp_path):
+def test_new_runs_default_to_the_mip_filters_and_older_runs_keep_their_settings(tiny_scene, tmp_path):
     import pointfield
     from pointfield.scenes.heldout import training_and_heldout
     from pointfield.splats.mip import SMOOTHING, training_smoothing
@@ -129,9 +129,8 @@ def test_new_runs_default_to_the_mip_filters_and_the_entropy_term_and_older_runs
     out = tmp_path / "new"
     train(tiny_scene, out=out, steps=2, eval_every=2, initial_splats=100, progress=False)
     config = json.loads((out / "config.json").read_text())
-    assert (config["mip"], config["opacity_entropy"], config["antialiased"], config["screen_dilation"]) == (
-        True, 0.1, True, 0.1)
-    assert config["mip_smoothing"] == DEFAULT_MIP_SMOOTHING
+    assert (config["mip"], config["antialiased"], config["screen_dilation"]) == (True, True, 0.1)
+    assert config["mip_smoothing"] == DEFAULT_MIP_SMOOTHING and not config["opacity_entropy"]
     assert pointfield.load_run(out, "cpu").gaussians.smoothing is not None
     # A mip run made before the 3D filter's strength was recorded was trained with Mip-Splatting's 0.2.
     del config["mip_smoothing"]
@@ -140,20 +139,19 @@ def test_new_runs_default_to_the_mip_filters_and_the_entropy_term_and_older_runs
     expected = training_smoothing(run.gaussians, run.scene.cameras[training_and_heldout(run.scene)[0]], SMOOTHING)
     assert float(expected.min()) > 0 and torch.equal(run.gaussians.smoothing, expected)
     # A run made before the defaults has none of their keys: resumed and loaded, it stays as trained.
-    for key in ("mip", "opacity_entropy", "antialiased", "screen_dilation"):
+    for key in ("mip", "antialiased", "screen_dilation"):
         del config[key]
     (out / "config.json").write_text(json.dumps(config))
     train(tiny_scene, out=out, steps=4, resume=True, progress=False)
     resumed = json.loads((out / "config.json").read_text())
-    assert not resumed.get("mip") and not resumed.get("opacity_entropy") and not resumed.get("antialiased")
+    assert not resumed.get("mip") and not resumed.get("antialiased")
     run = pointfield.load_run(out, "cpu")
     assert run.gaussians.smoothing is None and run.config.get("screen_dilation", 0.3) == 0.3
-    # From the command line, --no-mip --opacity-entropy 0 trains classic 3DGS.
+    # From the command line, --no-mip trains classic 3DGS.
     assert main(["splat", "train", str(tiny_scene), "--out", str(tmp_path / "classic"), "--steps", "2",
-                 "--initial-splats", "100", "--no-mip", "--opacity-entropy", "0", "--no-progress"]) == 0
+                 "--initial-splats", "100", "--no-mip", "--no-progress"]) == 0
     classic = json.loads((tmp_path / "classic" / "config.json").read_text())
-    assert (classic["mip"], classic["opacity_entropy"], classic["antialiased"], classic["screen_dilation"]) == (
-        False, 0.0, False, 0.3)
+    assert (classic["mip"], classic["antialiased"], classic["screen_dilation"]) == (False, False, 0.3)
 
 
 def test_commands_train_export_and_render(tiny_scene, tmp_path, capsys):

@@ -107,16 +107,19 @@ LEARNING_RATES = {
 }
 FINAL_MEANS_LEARNING_RATE_FRACTION = 0.01
 DEFAULT_MIP = True
-"""Mip-Splatting's filters are on by default: from 0.65x the training distance the cube of
-``make bench-near`` scores 2.5 dB better with them, and at the training distance no worse (docs/splats.md)."""
+"""Mip-Splatting's filters are on by default: on the cube of ``make bench-near`` (600 steps) they
+score 2.1 dB better held out and 3.7 dB better from 0.65x the training distance; lego at 100 x 100
+after 1000 steps, 0.3 dB lower on two held-out views (docs/splats.md)."""
 DEFAULT_MIP_SMOOTHING = 0.0
 """The 3D filter's strength ``s`` for new runs (:mod:`pointfield.splats.mip`; Mip-Splatting's is 0.2):
 none. On ``make bench-near``'s cube (same run, 600 steps) every distance scored best without it:
 held out 31.56 / 30.30 dB, from 0.65x 26.30 / 24.57, from 1.3x 33.38 / 32.27, turntable 28.88 /
 26.70 (s = 0 / 0.2; 0.05 and 0.1 in between, in order). The 2D mip filter stays (docs/splats.md)."""
-DEFAULT_OPACITY_ENTROPY = 0.1
-"""The opacity entropy term's default weight: splats opaque or gone, no faint random-start splats
-mottling the faces seen from nearer (docs/splats.md)."""
+DEFAULT_OPACITY_ENTROPY = 0.0
+"""The opacity entropy term's default weight: off. At 0.1 it gained the cube of ``make bench-near``
+0.7 dB from 0.65x the training distance but cost lego at 100 x 100 2.3 dB after 1000 steps (it
+pushed faint splats to nothing faster than densification grew them: 648 splats left against
+2,009; docs/splats.md)."""
 DEPTH_DISTORTION_FROM = 1000
 """The step from which the depth distortion (when asked for) is on: 2DGS starts it late too, once
 densification has put splats where the surfaces are."""
@@ -400,8 +403,7 @@ def train(
     mean absolute difference between rendered opacity and the images' alpha, added to the loss
     where the images have alpha (default 0.1; 0 turns it off). ``opacity_entropy``, ``flatness``
     and ``depth_distortion``: weights of the
-    geometry terms of :mod:`pointfield.splats.loss` (the opacity entropy 0.1 by default,
-    :data:`DEFAULT_OPACITY_ENTROPY`, 0 turns it off; the others off; ``GEOMETRY_WEIGHTS`` there are
+    geometry terms of :mod:`pointfield.splats.loss` (default off; ``GEOMETRY_WEIGHTS`` there are
     the ones measured). ``antialiased``: train (and render) in the rasterizer's antialiased mode;
     ``screen_dilation``: the variance in px^2 added to every splat's screen footprint (default
     0.1 with the mip filters, else 0.3, :data:`~pointfield.splats.rasterizer.SCREEN_DILATION`).
@@ -410,7 +412,7 @@ def train(
     the antialiased mode with a 0.1 px^2 dilation as the 2D mip filter, so that the splats hold up
     closer than they were trained. ``mip_smoothing``: the 3D filter's strength ``s`` (default
     :data:`DEFAULT_MIP_SMOOTHING`; Mip-Splatting's is 0.2). A run made before these defaults keeps what it was trained
-    with (no filters, no entropy term; a mip run, ``s`` = 0.2) when resumed or loaded. ``strategy``: how
+    with (no filters; a mip run, ``s`` = 0.2) when resumed or loaded. ``strategy``: how
     splats are added and removed, "default" (3DGS's cloning, splitting and pruning) or "mcmc"
     (3DGS-MCMC: dead splats relocated, the count grown to ``max_splats``), see
     :mod:`pointfield.splats.densification`. Resuming, only ``steps`` and ``max_splats`` may
