@@ -29,7 +29,9 @@ small flat splats, renders 11.7 % more outline pixels than the cube (3.3 % antia
 training shrinks the object about a pixel to match. With Mip-Splatting's smaller filter
 (``screen_dilation=0.1`` px^2 instead of 3DGS's 0.3) it is drawn closer still (tiled with discs
 of 0.01: 3.8 % over its outline, against 6.2 % at 0.3). The run records both, and everything
-that renders the run uses them.
+that renders the run uses them. By default (``mip``, :mod:`pointfield.splats.mip`) splats train
+with Mip-Splatting's 2D filter, the antialiased mode at 0.1 px^2, and its 3D filter at strength
+``mip_smoothing`` 0 unless asked for (:data:`DEFAULT_MIP_SMOOTHING` says why).
 :class:`~pointfield.splats.densification.DefaultStrategy` grows and prunes the splats from step 500 to half the run, never beyond ``max_splats``;
 ``strategy="mcmc"`` chooses :class:`~pointfield.splats.densification.MCMCStrategy` instead
 (3DGS-MCMC: relocation of dead splats, a hard cap, its opacity and scale regularisers).
