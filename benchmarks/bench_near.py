@@ -70,8 +70,8 @@ def main() -> int:
                         help="more ngp model options, JSON (default none: the CPU's defaults); e.g. a smaller grid and "
                              "'target_samples' for a loaded machine, as tests/fields/test_any_camera.py trains")
     parser.add_argument("--splat-options", type=json.loads, default={},
-                        help="splat train options, JSON (default none: the defaults); e.g. '{\"mip\": true}' for "
-                        "Mip-Splatting's filters, made for cameras nearer than the training ones")
+                        help="splat train options, JSON (default none: the defaults, with Mip-Splatting's "
+                        "filters); e.g. '{\"mip\": false}' for classic 3DGS")
     parser.add_argument("--models", nargs="+", choices=sorted(GOALS_DB), default=sorted(GOALS_DB),
                         help="which models to train and score (default both)")
     parser.add_argument("--out", type=Path, default=Path("bench-output/near"), help="scene and run folders")

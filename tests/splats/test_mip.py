@@ -58,7 +58,9 @@ CUBE = {"cube_views": 24, "cube_size": 48}
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """The cube trained from 4 units away, with and without the filters, in the same short schedule.
+    """The cube trained from 4 units away, with and without the filters, in the same short schedule
+    (without the opacity entropy term, on by default, so that the filters alone make the difference;
+    the 3D filter at Mip-Splatting's strength 0.2).
 
     Measured (seed 0): from 2.6 units 21.06 dB without the filters, 22.28 with; from 4 units
     27.38 and 27.14 dB. Shorter runs (300 steps at 40 x 40) have splats too coarse yet for the
@@ -67,7 +69,7 @@ def runs(tmp_path_factory):
     folder = tmp_path_factory.mktemp("mip")
     for mip in (False, True):
         train(None, out=folder / str(mip), steps=500, eval_every=500, initial_splats=2000, seed=0, device="cpu",
-              progress=False, mip=mip, **CUBE)
+              progress=False, mip=mip, mip_smoothing=SMOOTHING, opacity_entropy=0.0, **CUBE)
     return folder
 
 

@@ -120,6 +120,40 @@ def test_train_writes_a_run_and_resumes_it(tiny_scene, tmp_path):
         train(tiny_scene, out=out, steps=3, progress=False)
 
 
+def test_new_runs_default_to_the_mip_filters_and_older_runs_keep_their_settings(tiny_scene, tmp_path):
+    import pointfield
+    from pointfield.scenes.heldout import training_and_heldout
+    from pointfield.splats.mip import SMOOTHING, training_smoothing
+    from pointfield.splats.train import DEFAULT_MIP_SMOOTHING
+
+    out = tmp_path / "new"
+    train(tiny_scene, out=out, steps=2, eval_every=2, initial_splats=100, progress=False)
+    config = json.loads((out / "config.json").read_text())
+    assert (config["mip"], config["antialiased"], config["screen_dilation"]) == (True, True, 0.1)
+    assert config["mip_smoothing"] == DEFAULT_MIP_SMOOTHING and not config["opacity_entropy"]
+    assert pointfield.load_run(out, "cpu").gaussians.smoothing is not None
+    # A mip run made before the 3D filter's strength was recorded was trained with Mip-Splatting's 0.2.
+    del config["mip_smoothing"]
+    (out / "config.json").write_text(json.dumps(config))
+    run = pointfield.load_run(out, "cpu")
+    expected = training_smoothing(run.gaussians, run.scene.cameras[training_and_heldout(run.scene)[0]], SMOOTHING)
+    assert float(expected.min()) > 0 and torch.equal(run.gaussians.smoothing, expected)
+    # A run made before the defaults has none of their keys: resumed and loaded, it stays as trained.
+    for key in ("mip", "antialiased", "screen_dilation"):
+        del config[key]
+    (out / "config.json").write_text(json.dumps(config))
+    train(tiny_scene, out=out, steps=4, resume=True, progress=False)
+    resumed = json.loads((out / "config.json").read_text())
+    assert not resumed.get("mip") and not resumed.get("antialiased")
+    run = pointfield.load_run(out, "cpu")
+    assert run.gaussians.smoothing is None and run.config.get("screen_dilation", 0.3) == 0.3
+    # From the command line, --no-mip trains classic 3DGS.
+    assert main(["splat", "train", str(tiny_scene), "--out", str(tmp_path / "classic"), "--steps", "2",
+                 "--initial-splats", "100", "--no-mip", "--no-progress"]) == 0
+    classic = json.loads((tmp_path / "classic" / "config.json").read_text())
+    assert (classic["mip"], classic["antialiased"], classic["screen_dilation"]) == (False, False, 0.3)
+
+
 def test_commands_train_export_and_render(tiny_scene, tmp_path, capsys):
     run, ply, frames = tmp_path / "run", tmp_path / "s.ply", tmp_path / "frames"
     assert main(["splat", "train", str(tiny_scene), "--out", str(run), "--steps", "4",
@@ -141,6 +175,7 @@ def test_commands_train_export_and_render(tiny_scene, tmp_path, capsys):
 
 def test_an_antialiased_run_records_its_mode_and_dilation_and_renders_in_them(tiny_scene, tmp_path, capsys):
     import pointfield
+    from pointfield.splats.mip import drawn
     from pointfield.splats.ply import read_splat_mode
     from pointfield.splats.rasterizer import rasterizer_mode
     from pointfield.splats.run import camera_matrices, render_camera
@@ -152,8 +187,9 @@ def test_an_antialiased_run_records_its_mode_and_dilation_and_renders_in_them(ti
     assert run.config["antialiased"] is True and run.config["screen_dilation"] == 0.1
     opacity = run.render(run.scene.cameras[[0]], outputs=("opacity",))[0]["opacity"]
     g = run.gaussians
+    scales, opacities = drawn(g)  # with the 3D filter of the default --mip
     viewmats, Ks = camera_matrices(run.scene.cameras[[0]], run.device)
-    rendered = {(mode, dilation): rasterization(g.means, g.quats, g.scales, g.opacities, g.sh_coefficients, viewmats,
+    rendered = {(mode, dilation): rasterization(g.means, g.quats, scales, opacities, g.sh_coefficients, viewmats,
                                                 Ks, 24, 24, sh_degree=g.active_sh_degree, antialiased=mode,
                                                 screen_dilation=dilation)[2][0].detach()
                 for mode, dilation in ((False, 0.3), (True, 0.3), (True, 0.1))}
@@ -244,3 +280,9 @@ def test_depth_distortion_of_rendered_layers_grows_with_their_gap():
     # covers fewer pixels).
     assert distortion(0.2) == pytest.approx(4 * distortion(0.1), rel=0.05)
     assert distortion(0.1) > 0
+
+
+def test_a_negative_3d_filter_strength_is_refused_before_training(tmp_path):
+    with pytest.raises(PointfieldError, match="--mip-smoothing must be a number >= 0"):
+        train(None, out=tmp_path / "run", mip_smoothing=-0.1, steps=1, progress=False)
+    assert not (tmp_path / "run").exists()

@@ -57,13 +57,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                             "layer, for geometry export (default off; 100 measured, see docs/geometry.md)")
     train.add_argument("--antialiased", action="store_true",
                        help="rasterize in gsplat's antialiased mode (Mip-Splatting's 2D filter): outlines "
-                            "where they are, for geometry export (default: classic 3DGS)")
+                            "where they are (on with --mip, the default; with --no-mip default classic 3DGS)")
     train.add_argument("--screen-dilation", type=float, default=None, metavar="PX2",
-                       help="variance in px^2 added to every splat's screen footprint (default 0.3 as 3DGS; "
-                            "Mip-Splatting's 0.1 with --antialiased draws outlines closer, see docs/geometry.md)")
-    train.add_argument("--mip", action="store_true",
+                       help="variance in px^2 added to every splat's screen footprint (default 0.1 as "
+                            "Mip-Splatting's 2D filter; with --no-mip 0.3 as 3DGS, see docs/geometry.md)")
+    train.add_argument("--mip", action=argparse.BooleanOptionalAction, default=None,
                        help="Mip-Splatting's 3D smoothing and 2D mip filters: splats that hold up closer than "
-                            "the training cameras (implies --antialiased, dilation 0.1 px^2)")
+                            "the training cameras (implies --antialiased, dilation 0.1 px^2; default on, "
+                            "--no-mip: classic 3DGS)")
+    train.add_argument("--mip-smoothing", type=float, default=None, metavar="S",
+                       help="strength of the 3D filter: variance in squared training-pixel footprints "
+                            "(default 0; Mip-Splatting's 0.2, see docs/splats.md)")
     train.add_argument("--max-splats", type=int, default=DEFAULT_MAX_SPLATS,
                        help=f"densification never grows beyond this many splats (default {DEFAULT_MAX_SPLATS:,})")
     train.add_argument("--initial-splats", type=int, default=20_000,
@@ -129,7 +133,8 @@ def run_train(args: argparse.Namespace) -> int:
             args.scene, out=args.out, steps=args.steps, max_time=training_budget(args), downscale=args.downscale,
             holdout_every=args.holdout_every, background=background, alpha_loss=args.alpha_loss,
             opacity_entropy=args.opacity_entropy, flatness=args.flatness, antialiased=args.antialiased,
-            screen_dilation=args.screen_dilation, mip=args.mip, depth_distortion=args.depth_distortion,
+            screen_dilation=args.screen_dilation, mip=args.mip, mip_smoothing=args.mip_smoothing,
+            depth_distortion=args.depth_distortion,
             device=args.device,
             seed=args.seed,
             resume=args.resume, max_splats=args.max_splats, initial_splats=args.initial_splats,

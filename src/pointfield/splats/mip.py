@@ -30,7 +30,9 @@ import torch
 from pointfield.splats.gaussians import Gaussians
 
 SMOOTHING = 0.2
-"""Mip-Splatting's ``s``: the 3D filter's variance in units of the squared sampling interval."""
+"""Mip-Splatting's ``s``: the 3D filter's variance in units of the squared sampling interval (what
+a mip run made before ``mip_smoothing`` was recorded was trained with; new runs default to
+:data:`pointfield.splats.train.DEFAULT_MIP_SMOOTHING`)."""
 MIP_DILATION = 0.1
 """The 2D mip filter's variance in px^2 (Mip-Splatting's ``kernel_size``)."""
 REFRESH_EVERY = 100
@@ -40,8 +42,9 @@ SCREEN_MARGIN = 0.15
 
 @torch.no_grad()
 def smoothing_variance(means: torch.Tensor, viewmats: torch.Tensor, Ks: torch.Tensor, widths, heights,
-                       near_plane: float = 0.01) -> torch.Tensor:
-    """Each splat's 3D filter variance ``s / nu^2`` ``(N,)`` from the training cameras that see it.
+                       near_plane: float = 0.01, smoothing: float = SMOOTHING) -> torch.Tensor:
+    """Each splat's 3D filter variance ``s / nu^2`` ``(N,)`` from the training cameras that see it
+    (``s`` = ``smoothing``).
 
     ``viewmats`` ``(C, 4, 4)`` world-to-camera and ``Ks`` ``(C, 3, 3)`` as the rasterizer's,
     ``widths`` and ``heights`` ``(C,)``. A camera sees a splat when its mean is in front of the
@@ -65,7 +68,7 @@ def smoothing_variance(means: torch.Tensor, viewmats: torch.Tensor, Ks: torch.Te
     if not bool(seen_any.any()):
         return torch.zeros_like(interval)
     interval = torch.where(seen_any, interval, interval[seen_any].max())
-    return SMOOTHING * interval**2
+    return smoothing * interval**2
 
 
 def smoothed(scales: torch.Tensor, opacities: torch.Tensor,
@@ -97,10 +100,11 @@ def baked(gaussians: Gaussians) -> Gaussians:
                      gaussians.sh_dc, gaussians.sh_rest, gaussians.active_sh_degree)
 
 
-def training_smoothing(gaussians: Gaussians, cameras) -> torch.Tensor:
+def training_smoothing(gaussians: Gaussians, cameras, smoothing: float = SMOOTHING) -> torch.Tensor:
     """:func:`smoothing_variance` of ``gaussians`` from ``cameras`` (:class:`~pointfield.scenes.cameras.Cameras`,
-    the training views), on the splats' device."""
+    the training views) with strength ``smoothing``, on the splats' device."""
     device, dtype = gaussians.means.device, gaussians.means.dtype
     viewmats = cameras.world_to_camera().to(device, dtype)
     Ks = cameras.intrinsic_matrices().to(device, dtype)
-    return smoothing_variance(gaussians.means.detach(), viewmats, Ks, cameras.width, cameras.height)
+    return smoothing_variance(gaussians.means.detach(), viewmats, Ks, cameras.width, cameras.height,
+                              smoothing=smoothing)

@@ -28,7 +28,7 @@ from pointfield.scenes.heldout import OUTPUTS, View, open_scene, training_and_he
 from pointfield.scenes.run import SceneRun, render_path
 from pointfield.splats.gaussians import PARAMETER_NAMES, Gaussians
 from pointfield.splats.gsplat_rasterizer import choose_rasterizer, rasterization_gsplat
-from pointfield.splats.mip import baked, drawn, training_smoothing
+from pointfield.splats.mip import SMOOTHING, baked, drawn, training_smoothing
 from pointfield.splats.ply import read_splat_mode, read_splats, write_splats
 from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization, rasterizer_mode
 from pointfield.training.checkpoints import load_checkpoint
@@ -136,7 +136,9 @@ class SplatRun(SceneRun):
         run = cls(directory, config, gaussians, device)
         if config.get("mip"):
             train_frames, _ = training_and_heldout(run.scene)
-            gaussians.smoothing = training_smoothing(gaussians, run.scene.cameras[train_frames])
+            # A mip run made before the strength was recorded was trained with Mip-Splatting's 0.2.
+            gaussians.smoothing = training_smoothing(gaussians, run.scene.cameras[train_frames],
+                                                     float(config.get("mip_smoothing", SMOOTHING)))
         return run
 
     @property

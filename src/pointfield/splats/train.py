@@ -29,7 +29,9 @@ small flat splats, renders 11.7 % more outline pixels than the cube (3.3 % antia
 training shrinks the object about a pixel to match. With Mip-Splatting's smaller filter
 (``screen_dilation=0.1`` px^2 instead of 3DGS's 0.3) it is drawn closer still (tiled with discs
 of 0.01: 3.8 % over its outline, against 6.2 % at 0.3). The run records both, and everything
-that renders the run uses them.
+that renders the run uses them. By default (``mip``, :mod:`pointfield.splats.mip`) splats train
+with Mip-Splatting's 2D filter, the antialiased mode at 0.1 px^2, and its 3D filter at strength
+``mip_smoothing`` 0 unless asked for (:data:`DEFAULT_MIP_SMOOTHING` says why).
 :class:`~pointfield.splats.densification.DefaultStrategy` grows and prunes the splats from step 500 to half the run, never beyond ``max_splats``;
 ``strategy="mcmc"`` chooses :class:`~pointfield.splats.densification.MCMCStrategy` instead
 (3DGS-MCMC: relocation of dead splats, a hard cap, its opacity and scale regularisers).
@@ -76,7 +78,7 @@ from pointfield.splats.loss import (
     opacity_entropy,
     splat_loss,
 )
-from pointfield.splats.mip import MIP_DILATION, REFRESH_EVERY, drawn, training_smoothing
+from pointfield.splats.mip import MIP_DILATION, REFRESH_EVERY, SMOOTHING, drawn, training_smoothing
 from pointfield.splats.rasterizer import SCREEN_DILATION, rasterization, rasterizer_mode
 from pointfield.splats.run import (
     TASK,
@@ -106,6 +108,20 @@ LEARNING_RATES = {
     "sh_rest": 2.5e-3 / 20,
 }
 FINAL_MEANS_LEARNING_RATE_FRACTION = 0.01
+DEFAULT_MIP = True
+"""Mip-Splatting's filters are on by default: on the cube of ``make bench-near`` (600 steps) they
+score 2.1 dB better held out and 3.7 dB better from 0.65x the training distance; lego at 100 x 100
+after 1000 steps 0.30 and 0.06 dB lower on two held-out views, seeds 0 and 1 (docs/splats.md)."""
+DEFAULT_MIP_SMOOTHING = 0.0
+"""The 3D filter's strength ``s`` for new runs (:mod:`pointfield.splats.mip`; Mip-Splatting's is 0.2):
+none. On ``make bench-near``'s cube (same run, 600 steps) every distance scored best without it:
+held out 31.56 / 30.30 dB, from 0.65x 26.30 / 24.57, from 1.3x 33.38 / 32.27, turntable 28.88 /
+26.70 (s = 0 / 0.2; 0.05 and 0.1 in between, in order). The 2D mip filter stays (docs/splats.md)."""
+DEFAULT_OPACITY_ENTROPY = 0.0
+"""The opacity entropy term's default weight: off. At 0.1 it gained the cube of ``make bench-near``
+0.7 dB from 0.65x the training distance but cost lego at 100 x 100 2.3 dB after 1000 steps (it
+pushed faint splats to nothing faster than densification grew them: 648 splats left against
+2,009; docs/splats.md)."""
 DEPTH_DISTORTION_FROM = 1000
 """The step from which the depth distortion (when asked for) is on: 2DGS starts it late too, once
 densification has put splats where the surfaces are."""
@@ -157,6 +173,9 @@ class SplatTask(Task):
 
     @classmethod
     def configure(cls, settings: dict[str, Any]) -> dict[str, Any]:
+        # The defaults of a new run; a resumed run keeps its own config.json (the lifecycle), and
+        # one made before these defaults, without the keys, keeps training and rendering without them.
+        mip = DEFAULT_MIP if settings.get("mip") is None else bool(settings["mip"])
         config = {
             "task": TASK,
             **scene_config(settings),
@@ -168,19 +187,24 @@ class SplatTask(Task):
             "eval_every": int(settings["eval_every"] or 250),
             "eval_views": int(settings["eval_views"]),
             "alpha_loss": settings.get("alpha_loss"),
-            "opacity_entropy": settings.get("opacity_entropy"),
+            "opacity_entropy": float(DEFAULT_OPACITY_ENTROPY if settings.get("opacity_entropy") is None
+                                     else settings["opacity_entropy"]),
             "flatness": settings.get("flatness"),
-            # Mip-Splatting's filters: the 3D one (pointfield.splats.mip) and, as its 2D one, the
-            # antialiased mode with a 0.1 px^2 dilation unless another dilation is asked for.
-            "mip": bool(settings.get("mip")),
-            "antialiased": bool(settings.get("antialiased") or settings.get("mip")),
+            # Mip-Splatting's filters (on unless turned off): the 3D one (pointfield.splats.mip) and,
+            # as its 2D one, the antialiased mode with a 0.1 px^2 dilation unless another is asked for.
+            "mip": mip,
+            "mip_smoothing": float(DEFAULT_MIP_SMOOTHING if settings.get("mip_smoothing") is None
+                                   else settings["mip_smoothing"]),
+            "antialiased": bool(settings.get("antialiased") or mip),
             "screen_dilation": float(settings["screen_dilation"] if settings.get("screen_dilation") is not None
-                                     else MIP_DILATION if settings.get("mip") else SCREEN_DILATION),
+                                     else MIP_DILATION if mip else SCREEN_DILATION),
             "depth_distortion": settings.get("depth_distortion"),
             "strategy": settings.get("strategy") or "default",
         }
         if min(config["steps"], config["max_splats"], config["initial_splats"], config["eval_every"]) < 1:
             raise PointfieldError("--steps, --max-splats and --eval-every must be positive")
+        if not (math.isfinite(config["mip_smoothing"]) and config["mip_smoothing"] >= 0):
+            raise PointfieldError(f"--mip-smoothing must be a number >= 0, got {config['mip_smoothing']}")
         if not (math.isfinite(config["screen_dilation"]) and config["screen_dilation"] > 0):
             raise PointfieldError(f"--screen-dilation must be a positive number of px^2, got {config['screen_dilation']}")
         if config["strategy"] not in STRATEGIES:
@@ -294,7 +318,8 @@ class SplatTask(Task):
 
     def _refresh_smoothing(self) -> None:
         """Recompute Mip-Splatting's 3D filter from the training cameras (:mod:`pointfield.splats.mip`)."""
-        self.model.smoothing = training_smoothing(self.model, self.scene.cameras[self.train_frames])
+        self.model.smoothing = training_smoothing(self.model, self.scene.cameras[self.train_frames],
+                                                  float(self.config.get("mip_smoothing", SMOOTHING)))
 
     def _render_with_squared_depth(self, view: int):
         """Render training ``view`` with a fourth colour channel: each splat's squared camera z,
@@ -352,7 +377,8 @@ def train(
     flatness: float | None = None,
     antialiased: bool = False,
     screen_dilation: float | None = None,
-    mip: bool = False,
+    mip: bool | None = None,
+    mip_smoothing: float | None = None,
     depth_distortion: float | None = None,
     device: str | None = None,
     seed: int = 0,
@@ -382,10 +408,13 @@ def train(
     geometry terms of :mod:`pointfield.splats.loss` (default off; ``GEOMETRY_WEIGHTS`` there are
     the ones measured). ``antialiased``: train (and render) in the rasterizer's antialiased mode;
     ``screen_dilation``: the variance in px^2 added to every splat's screen footprint (default
-    0.3, :data:`~pointfield.splats.rasterizer.SCREEN_DILATION`; Mip-Splatting's filter is 0.1).
-    ``mip``: Mip-Splatting's filters (:mod:`pointfield.splats.mip`): each splat's 3D smoothing
-    filter from the training cameras, and the antialiased mode with a 0.1 px^2 dilation as the 2D
-    mip filter, so that the splats hold up closer than they were trained. ``strategy``: how
+    0.1 with the mip filters, else 0.3, :data:`~pointfield.splats.rasterizer.SCREEN_DILATION`).
+    ``mip`` (default True, :data:`DEFAULT_MIP`; False turns it off): Mip-Splatting's filters
+    (:mod:`pointfield.splats.mip`): each splat's 3D smoothing filter from the training cameras, and
+    the antialiased mode with a 0.1 px^2 dilation as the 2D mip filter, so that the splats hold up
+    closer than they were trained. ``mip_smoothing``: the 3D filter's strength ``s`` (default
+    :data:`DEFAULT_MIP_SMOOTHING`; Mip-Splatting's is 0.2). A run made before these defaults keeps what it was trained
+    with (no filters; a mip run, ``s`` = 0.2) when resumed or loaded. ``strategy``: how
     splats are added and removed, "default" (3DGS's cloning, splitting and pruning) or "mcmc"
     (3DGS-MCMC: dead splats relocated, the count grown to ``max_splats``), see
     :mod:`pointfield.splats.densification`. Resuming, only ``steps`` and ``max_splats`` may
@@ -395,7 +424,8 @@ def train(
         "scene": scene, "steps": steps, "downscale": downscale, "holdout_every": holdout_every,
         "background": background, "alpha_loss": alpha_loss, "opacity_entropy": opacity_entropy,
         "flatness": flatness, "antialiased": antialiased,
-        "screen_dilation": screen_dilation, "mip": mip, "depth_distortion": depth_distortion, "seed": seed,
+        "screen_dilation": screen_dilation, "mip": mip, "mip_smoothing": mip_smoothing,
+        "depth_distortion": depth_distortion, "seed": seed,
         "max_splats": max_splats, "initial_splats": initial_splats, "init": init, "strategy": strategy,
         "eval_every": eval_every, "eval_views": eval_views, "cube_views": cube_views, "cube_size": cube_size,
     }
