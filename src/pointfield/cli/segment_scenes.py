@@ -50,7 +50,7 @@ def add_predict_scale_options(parser: argparse.ArgumentParser) -> None:
     scale = parser.add_argument_group("memory (scene runs)")
     scale.add_argument("--memory", metavar="SIZE",
                        help="resident memory the prediction may use, e.g. 2G or 512M (default: what is free); a scan "
-                       "that does not fit read whole is predicted tile by tile, with the same labels")
+                       "that does not fit read whole is predicted tile by tile, with the same labels (to float rounding)")
     scale.add_argument("--scratch", type=Path, metavar="DIR",
                        help="folder for the tiles' temporary spills (default: beside the output)")
     scale.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
