@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test test-guides lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos clean
+.PHONY: demo test test-guides lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos bench-predict clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -56,7 +56,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos
+bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos bench-predict
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -79,6 +79,12 @@ bench-pointnet: $(BIN)/.installed
 
 bench-scenes: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_scenes.py
+
+# segment predict --memory 2GB on a generated 10 M point LAZ (../bench-output/predict), PointNet++ and PTv3;
+# shorter: make bench-predict PREDICT_POINTS=1000000
+PREDICT_POINTS ?= 10000000
+bench-predict: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_predict.py --points $(PREDICT_POINTS)
 
 bench-nerf: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_nerf.py

@@ -27,11 +27,9 @@ from pointfield.training.run import RunDirectory
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
-@pytest.fixture(scope="module")
-def run(rooms, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("runs") / "rooms"
-    assert main(["segment", "train", str(rooms), "--out", str(out), "--epochs", "3", "--lr", "0.002", *TINY]) == 0
-    return out
+@pytest.fixture
+def run(rooms_run) -> Path:
+    return rooms_run
 
 
 def test_a_pointnet2_learns_rooms_loss_falls_and_miou_beats_the_majority_guess(run):

@@ -50,6 +50,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                          "(default: RUN/predictions)")
     predict.add_argument("--device", help="auto (default), cpu, cuda, cuda:N or mps")
     predict.add_argument("--json", action="store_true", help="print JSON")
+    segment_scenes.add_predict_scale_options(predict)
     predict.set_defaults(run=run_predict)
     segment_scenes.add_make_scenes_parser(verbs)
 
@@ -59,7 +60,8 @@ def run_predict(args: argparse.Namespace) -> int:
     if segment_scenes.scene_run_task(args.run_dir):
         from pointfield.clouds.scene_tasks import open_scene_run
 
-        answers = open_scene_run(args.run_dir, args.device).predict(args.files, out=args.out)
+        answers = open_scene_run(args.run_dir, args.device).predict(args.files, out=args.out,
+                                                                    **segment_scenes.predict_scale(args))
         counted = "classes"
     else:
         from pointfield.clouds import run

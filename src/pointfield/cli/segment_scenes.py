@@ -45,6 +45,26 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
     scenes.add_argument("--test-area", type=int, help="S3DIS area held out for testing (default 5)")
 
 
+def add_predict_scale_options(parser: argparse.ArgumentParser) -> None:
+    """``segment predict``'s ``--memory``, ``--scratch`` and ``--no-progress`` (scene runs)."""
+    scale = parser.add_argument_group("memory (scene runs)")
+    scale.add_argument("--memory", metavar="SIZE",
+                       help="resident memory the prediction may use, e.g. 2G or 512M (default: what is free); a scan "
+                       "that does not fit read whole is predicted tile by tile, with the same labels (to float rounding)")
+    scale.add_argument("--scratch", type=Path, metavar="DIR",
+                       help="folder for the tiles' temporary spills (default: beside the output)")
+    scale.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
+
+
+def predict_scale(args: argparse.Namespace) -> dict[str, Any]:
+    """The options of :func:`add_predict_scale_options` as :meth:`SceneRun.predict` takes them."""
+    if args.memory is not None:
+        from pointfield.streaming.memory import parse_memory
+
+        parse_memory(args.memory)  # a malformed size is refused before the run is opened
+    return {"memory": args.memory, "scratch": args.scratch, "progress": args.progress}
+
+
 def add_make_scenes_parser(verbs: argparse._SubParsersAction) -> None:
     make = verbs.add_parser(
         "make-scenes", help="write synthetic labelled scans of rooms or streets",

@@ -180,7 +180,7 @@ def _bucket_tree_height(count: int) -> int:
 
 
 def voxel_downsample(
-    cloud: PointCloud | np.ndarray, voxel_size: float, return_inverse: bool = False
+    cloud: PointCloud | np.ndarray, voxel_size: float, return_inverse: bool = False, origin: np.ndarray | None = None
 ) -> PointCloud | np.ndarray | tuple[PointCloud | np.ndarray, np.ndarray]:
     """One point per occupied cube of side ``voxel_size``: the mean of the points inside it.
 
@@ -190,7 +190,9 @@ def voxel_downsample(
     returns the ``(M, 3)`` voxel centroids in its dtype; given a cloud, a cloud. Voxels come in
     lexicographic order of their grid coordinates. Non-finite points are dropped. With
     ``return_inverse``, also the ``(N,)`` int64 voxel of every input point (-1 for a dropped
-    one), so that a result computed per voxel can be handed back to every point.
+    one), so that a result computed per voxel can be handed back to every point. ``origin``
+    ``(3,)``, when given, replaces ``min`` as the grid's corner: pieces of one cloud (tiles) then
+    share its grid, so that a voxel whole in a piece has the centroid it has in the cloud.
     """
     if voxel_size <= 0:
         raise ValueError(f"voxel_size must be positive, got {voxel_size}")
@@ -201,7 +203,8 @@ def voxel_downsample(
     if len(points) == 0:
         result = source if isinstance(cloud, PointCloud) else source.points
         return (result, np.full(len(finite), -1, np.int64)) if return_inverse else result
-    cells = np.floor((points - points.min(axis=0)) / voxel_size).astype(np.int64)
+    corner = points.min(axis=0) if origin is None else np.asarray(origin, np.float64)
+    cells = np.floor((points - corner) / voxel_size).astype(np.int64)
     _, first, inverse, counts = np.unique(
         cells, axis=0, return_index=True, return_inverse=True, return_counts=True
     )

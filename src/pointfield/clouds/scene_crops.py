@@ -12,11 +12,16 @@ every scene-segmentation recipe does (PointNet++, KPConv, Pointcept):
    column of square section (``"block"``, PointNet's S3DIS blocks) of ``radius`` metres around
    a centre point whose class is first drawn uniformly among the classes present, so a class
    with 1 % of the points is at the centre of as many crops as the floor is;
-3. prediction covers the whole scan with windows (:func:`cover`): the first point in
-   coordinate order not yet in the core (three quarters of the radius) of a window becomes the next
-   centre, until every point is in some core; a window with more than ``points`` points is
-   split into chunks of at most ``points``, each a thinner copy of the whole window.
-   :func:`vote` averages each point's class probabilities over every window that holds it.
+3. prediction covers the whole scan with windows (:func:`cover`), cell by cell of a grid of
+   columns ``COVER_CELL_RADII`` radii wide in x y (from x = y = 0): in each cell, the first of its
+   points in coordinate order not yet in the core (three quarters of the radius) of one of the
+   cell's windows becomes the next centre, until every point of the cell is in some core; a window
+   with more than ``points`` points is split into chunks of at most ``points``, each a thinner
+   copy of the whole window. :func:`vote` averages each point's class probabilities over every
+   window that holds it. A cell's windows depend on its own points alone, and a window's points on
+   those within a radius of its centre, so a piece of the scan that holds a cell and everything
+   within ``COVER_CELL_RADII + 1`` radii of it gives that cell the windows the whole scan gives it
+   (what streamed prediction, :mod:`pointfield.clouds.scene_streaming`, predicts tiles by).
 
 Crops reach the model centred on their centre and divided by the radius, so PointNet++'s
 radii (0.2 and 0.4 of the unit ball) are 0.4 m and 0.8 m for a crop of 2 m. Windows, chunks
@@ -54,6 +59,7 @@ from pointfield.errors import PointfieldError
 FEATURES = {"colour": 3, "intensity": 1, "normals": 3, "height": 1}
 CROP_SHAPES = ("sphere", "block")
 CORE_FRACTION = 0.75
+COVER_CELL_RADII = 2.0
 NORMAL_NEIGHBOURS = 16
 
 
@@ -64,7 +70,8 @@ def default_features(scan: PointCloud) -> list[str]:
 
 
 def prepare_scene(
-    scan: PointCloud, grid: float, features: Sequence[str], name: str = "scan", return_inverse: bool = False
+    scan: PointCloud, grid: float, features: Sequence[str], name: str = "scan", return_inverse: bool = False,
+    *, origin: np.ndarray | None = None, floor: float | None = None,
 ) -> PointCloud | tuple[PointCloud, np.ndarray]:
     """``scan`` subsampled on a grid of ``grid`` metres (0: kept whole), with the feature fields.
 
@@ -72,6 +79,9 @@ def prepare_scene(
     name in ``features`` (see :data:`FEATURES`). A feature the scan cannot give is a
     :class:`PointfieldError` naming the scan. With ``return_inverse``, also the ``(N,)`` index
     of every input point's representative in the result (-1 for a non-finite point).
+    ``origin`` (the grid's corner, default the scan's minimum) and ``floor`` (the z that height is
+    measured from, default the 1st percentile of the subsampled z) are the whole scan's when
+    ``scan`` is a piece of it.
     """
     finite = ops.finite_rows(scan.points)
     if not finite.any():
@@ -81,7 +91,7 @@ def prepare_scene(
     order = np.lexsort(scan.points.T[::-1])
     ordered = scan.select(order)
     if grid > 0:
-        cloud, inverse_ordered = ops.voxel_downsample(ordered, grid, return_inverse=True)
+        cloud, inverse_ordered = ops.voxel_downsample(ordered, grid, return_inverse=True, origin=origin)
     else:
         cloud = ordered.select(finite[order])
         inverse_ordered = np.full(len(scan), -1, np.int64)
@@ -92,12 +102,12 @@ def prepare_scene(
     if LABEL_FIELD in cloud.fields:
         fields[LABEL_FIELD] = cloud.fields[LABEL_FIELD].astype(np.int64)
     for feature in features:
-        fields[feature] = _feature(cloud, feature, name)
+        fields[feature] = _feature(cloud, feature, name, floor)
     prepared = PointCloud(cloud.points.astype(np.float32), fields, None, {"scan": name})
     return (prepared, inverse) if return_inverse else prepared
 
 
-def _feature(cloud: PointCloud, feature: str, name: str) -> np.ndarray:
+def _feature(cloud: PointCloud, feature: str, name: str, floor: float | None = None) -> np.ndarray:
     if feature == "colour":
         if "colors" not in cloud.fields:
             raise PointfieldError(f"{name}: has no colours for the feature 'colour'")
@@ -112,7 +122,7 @@ def _feature(cloud: PointCloud, feature: str, name: str) -> np.ndarray:
             return np.nan_to_num(np.asarray(cloud.fields["normals"], np.float32))
         return ops.estimate_normals(cloud.points, NORMAL_NEIGHBOURS).astype(np.float32)
     if feature == "height":
-        floor = np.percentile(cloud.points[:, 2], 1)
+        floor = np.percentile(cloud.points[:, 2], 1) if floor is None else floor
         return (cloud.points[:, 2:3] - floor).astype(np.float32)
     raise PointfieldError(f"unknown feature {feature!r}: expected one of {', '.join(FEATURES)}")
 
@@ -209,16 +219,35 @@ def class_weights(scenes: Sequence[PointCloud], classes: int) -> np.ndarray:
     return weights / weights[present].mean() if present.any() else weights
 
 
-def cover(finder: CropFinder, points_per_chunk: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """``(centre (3,), chunk indices)`` for every chunk of every window covering the scan (module doc)."""
+def cover_cells(points: np.ndarray, radius: float) -> np.ndarray:
+    """``(N, 2)`` int64: the cover cell (column) of each point, ``floor((x, y) / (COVER_CELL_RADII * radius))``."""
+    return np.floor(points[:, :2].astype(np.float64) / (COVER_CELL_RADII * radius)).astype(np.int64)
+
+
+def cover(
+    finder: CropFinder, points_per_chunk: int, reach: tuple[np.ndarray, np.ndarray] | None = None
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """``(centre (3,), chunk indices)`` for every chunk of every window covering the scan (module doc).
+
+    Cells are taken in order of their (i, j), each point of a cell in coordinate order; a window
+    marks as covered only the points of its own cell, so a cell's windows are the same whatever
+    its neighbours hold. ``reach`` ``(low (2,), high (2,))``, an x y box, keeps only the windows
+    of the cells that meet it.
+    """
     points = finder.points
-    order = np.lexsort((points[:, 2], points[:, 1], points[:, 0]))
+    cells = cover_cells(points, finder.radius)
+    order = np.lexsort((points[:, 2], points[:, 1], points[:, 0], cells[:, 1], cells[:, 0]))
+    if reach is not None:
+        side = COVER_CELL_RADII * finder.radius
+        meets = np.all((cells + 1) * side >= reach[0], axis=1) & np.all(cells * side <= reach[1], axis=1)
+        order = order[meets[order]]
     covered = np.zeros(len(points), bool)
     for position in order:
         if covered[position]:
             continue
         centre = points[position].astype(np.float64)
-        covered[finder.within(centre, finder.radius * CORE_FRACTION)] = True
+        core = finder.within(centre, finder.radius * CORE_FRACTION)
+        covered[core[(cells[core] == cells[position]).all(axis=1)]] = True
         window = finder.within(centre)
         ranked = window[ops.canonical_sample(points[window], len(window))]
         for chunk in np.array_split(ranked, -(-len(ranked) // points_per_chunk)):
@@ -236,16 +265,24 @@ def vote(
     classes: int,
     device: torch.device,
     batch_size: int = 8,
+    wanted: np.ndarray | None = None,
+    reach: tuple[np.ndarray, np.ndarray] | None = None,
+    bar=None,
 ) -> np.ndarray:
     """``(N, classes)`` float32: each point's class probabilities averaged over the windows holding it.
 
     ``scene`` is a prepared scan (:func:`prepare_scene`); ``model`` maps crops in the unit ball
-    to per-point scores, as in training.
+    to per-point scores, as in training. With ``wanted`` (``(N,)`` bool), only the chunks that
+    hold a wanted point are run, and with ``reach`` only the windows of the cover cells meeting
+    that box (:func:`cover`): the other points' rows are then partial (a tile's halo).
+    ``bar``, a tqdm bar, advances by the wanted points (all, without ``wanted``) as their
+    first window is run.
     """
     finder = CropFinder(scene.points, radius, shape)
     collate = CloudCollate(features)
     totals = np.zeros((len(scene), classes), np.float64)
     counts = np.zeros(len(scene), np.int64)
+    counted = np.zeros(len(scene), bool) if bar is not None else None
     was_training = model.training
     model.eval()
 
@@ -261,9 +298,15 @@ def vote(
         for row, (_, chunk) in enumerate(pending):
             totals[chunk] += probabilities[row, : len(chunk)]
             counts[chunk] += 1
+            if counted is not None:
+                fresh = chunk[~counted[chunk] & (True if wanted is None else wanted[chunk])]
+                counted[fresh] = True
+                bar.update(len(fresh))
 
     pending: list[tuple[np.ndarray, np.ndarray]] = []
-    for window in cover(finder, points):
+    for window in cover(finder, points, reach):
+        if wanted is not None and not wanted[window[1]].any():
+            continue
         pending.append(window)
         if len(pending) == batch_size:
             run(pending)

@@ -66,6 +66,7 @@ from pointfield.clouds.tasks import (
 )
 from pointfield.errors import FormatError, PointfieldError
 from pointfield.metrics import confusion_matrix
+from pointfield.streaming.jobs import progress_bar
 from pointfield.training import lifecycle
 from pointfield.training.distributed import wrap
 from pointfield.training.lifecycle import restore_model
@@ -418,7 +419,8 @@ class SceneRun(Run):
         }
 
     def predict(
-        self, files: Sequence[str | os.PathLike[str]], *, out: str | os.PathLike[str] | None = None
+        self, files: Sequence[str | os.PathLike[str]], *, out: str | os.PathLike[str] | None = None,
+        memory: str | int | None = None, progress: bool = False, scratch: str | os.PathLike[str] | None = None,
     ) -> list[dict[str, Any]]:
         """Label every point of each file and write it with its labels and their confidence.
 
@@ -430,16 +432,46 @@ class SceneRun(Run):
         probability. Points with a non-finite coordinate get label -1 (LAS: 0) and confidence
         0. ``out`` is a file (one input; its suffix picks the format) or a folder (default
         ``RUN/predictions``) where each output keeps its input's name. Beside each output,
-        ``<output>.classes.json`` maps each code to its class name. Returns one dict per file:
+        ``<output>.classes.json`` maps each code to its class name, and a LAS / LAZ output's header
+        carries the same table as ASPRS's Classification Lookup VLR. Returns one dict per file:
         ``file``, ``output``, ``points`` and ``classes`` (name -> count).
+
+        A file that reading whole would not fit in ``memory`` (``"2G"``, ``"512M"``; default: the
+        memory the system has free) is predicted tile by tile within it, with the same labels
+        (:mod:`~pointfield.clouds.scene_streaming`; ``scratch``: where its spills go, default
+        beside the output); its dict adds ``tiles``, ``tile_size`` and ``halo``.
         """
+        from pointfield.clouds.scene_streaming import predict_streamed, stream_info, wants_streaming
+
         paths = [Path(f) for f in files]
         if not paths:
             raise PointfieldError("no files to predict")
         targets = output_paths(paths, Path(out) if out is not None else self.path / "predictions")
-        return [self._predict_file(path, target) for path, target in zip(paths, targets)]
+        answers = []
+        for path, target in zip(paths, targets):
+            if not path.is_file():
+                raise PointfieldError(f"{path}: no such file")
+            info = stream_info(path)
+            if info is not None and wants_streaming(*info, self.config, memory):
+                answer = predict_streamed(self.module, self.config, self.device, path, target,
+                                          memory if memory is not None else _free_memory(), progress=progress,
+                                          scratch=scratch)
+                self._write_class_table(target)
+            else:
+                answer = self._predict_file(path, target, progress)
+            answers.append(answer)
+        return answers
 
-    def _predict_file(self, path: Path, target: Path) -> dict[str, Any]:
+    def _write_class_table(self, target: Path) -> None:
+        table = target.with_name(target.name + ".classes.json")
+        with atomic_path(table) as tmp:
+            tmp.write_text(json.dumps({str(c): n for c, n in zip(self.config["codes"], self.config["classes"])},
+                                      indent=1))
+
+    def _predict_file(self, path: Path, target: Path, progress: bool = False) -> dict[str, Any]:
+        from pointfield.clouds.datasets.labelled import with_class_lookup
+        from pointfield.clouds.scene_streaming import frame_of
+
         config = self.config
         data = read(path)
         if not isinstance(data, PointCloud):
@@ -447,9 +479,15 @@ class SceneRun(Run):
         for feature, field in (("colour", "colors"), ("intensity", "intensity")):
             if feature in config["features"] and field not in data.fields:
                 raise FormatError(path, f"has no {field!r} field, which this model takes as input")
-        scan = as_scan(data, path, path.name)
-        prepared, inverse = prepare_scene(scan, config["grid"], config["features"], path.name, return_inverse=True)
-        probabilities = vote_on(self.module, prepared, config, self.device)
+        frame = frame_of(data, path)
+        scan = as_scan(data, path, path.name, offset=frame.offset, intensity_scale=frame.intensity_scale)
+        prepared, inverse = prepare_scene(scan, config["grid"], config["features"], path.name, return_inverse=True,
+                                          origin=frame.origin, floor=frame.floor)
+        with progress_bar(len(prepared), f"predict {path.name} (grid points)", progress) as bar:
+            probabilities = vote(self.module, prepared, radius=config["radius"], points=config["points"],
+                                 shape=config["shape"], features=config["features"],
+                                 classes=len(config["classes"]), device=self.device,
+                                 batch_size=config["batch_size"], bar=bar)
         best = probabilities.argmax(axis=1)
         codes = np.asarray(config["codes"], np.int64)
         real = inverse >= 0
@@ -458,27 +496,33 @@ class SceneRun(Run):
         labels[real] = codes[best[inverse[real]]]
         confidence[real] = probabilities[inverse[real], best[inverse[real]]]
         fields = dict(data.fields)
+        metadata = dict(data.metadata)
         if target.suffix.lower() in LAS_SUFFIXES:
             if codes.min() < 0 or codes.max() > 255:
                 raise PointfieldError(f"{target}: LAS classification holds 0..255; this run's codes are "
                                       f"{codes.min()}..{codes.max()}: write .ply instead")
             fields["classification"] = np.where(real, labels, 0).astype(np.uint8)
+            metadata = with_class_lookup(metadata, codes.tolist(), config["classes"])
         else:
             fields["label"] = labels.astype(np.int32)
         fields["confidence"] = confidence
         target.parent.mkdir(parents=True, exist_ok=True)
         if isinstance(data, Mesh):
-            labelled = Mesh(data.points, fields, data.shape, dict(data.metadata), faces=data.faces,
+            labelled = Mesh(data.points, fields, data.shape, metadata, faces=data.faces,
                             face_fields=dict(data.face_fields))
         else:
-            labelled = PointCloud(data.points, fields, data.shape, dict(data.metadata))
+            labelled = PointCloud(data.points, fields, data.shape, metadata)
         write(target, labelled)
-        table = target.with_name(target.name + ".classes.json")
-        with atomic_path(table) as tmp:
-            tmp.write_text(json.dumps({str(c): n for c, n in zip(config["codes"], config["classes"])}, indent=1))
+        self._write_class_table(target)
         counts = np.bincount(best[inverse[real]], minlength=len(config["classes"]))
         return {"file": str(path), "output": str(target), "points": len(data),
                 "classes": {n: int(c) for n, c in zip(config["classes"], counts) if c}}
+
+
+def _free_memory() -> int:
+    import psutil
+
+    return int(psutil.virtual_memory().available)
 
 
 def output_paths(paths: Sequence[Path], out: Path) -> list[Path]:

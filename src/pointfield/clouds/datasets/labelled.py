@@ -7,9 +7,11 @@ and what pointfield writes for it) or ``label`` (PLY and the rest), or any field
 1. as ``classes`` (a list: code i is ``classes[i]``; or a dict ``{code: name}``), else
 2. in a ``classes.json`` file (the same list or object) in the files' folder or the folder
    above it (as :func:`~pointfield.clouds.synthetic_scenes.make_scenes` writes it), else
-3. for LAS ``classification``, the ASPRS standard classes (2 ground, 6 building, ...) of the
+3. for LAS ``classification``, the Classification Lookup VLR of the first training file that
+   has one (ASPRS's class table in the header, as ``segment predict`` writes it), else
+4. for LAS ``classification``, the ASPRS standard classes (2 ground, 6 building, ...) of the
    codes that occur in the training files, else
-4. the codes that occur in the training files, named by their numbers.
+5. the codes that occur in the training files, named by their numbers.
 
 Inside, labels are indices into ``classes`` (``codes[i]`` is class i's code in the files, so
 predictions are written back in the files' own codes); a code outside the table is -1,
@@ -25,6 +27,7 @@ import math
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,6 +39,7 @@ from pointfield.clouds.mesh import Mesh
 from pointfield.errors import FormatError, PointfieldError
 
 CLASSES_FILE = "classes.json"
+LAS_CLASS_LOOKUP = ("LASF_Spec", 0)
 LABEL_FIELDS = ("classification", "label")
 HOLDOUT_FRACTION = 0.2
 # ASPRS standard point classes of LAS 1.4 (R15), table 17.
@@ -45,6 +49,41 @@ ASPRS_CLASSES = {
     11: "road surface", 12: "overlap", 13: "wire guard", 14: "wire conductor", 15: "transmission tower",
     16: "wire-structure connector", 17: "bridge deck", 18: "high noise",
 }
+
+
+def class_lookup_record(codes: Sequence[int], names: Sequence[str]) -> dict[str, Any]:
+    """The ASPRS Classification Lookup VLR (user "LASF_Spec", record 0) of ``codes`` -> ``names``,
+    as a record of ``metadata["las_vlrs"]``: 256 entries of a uint8 class and a 15-byte ASCII
+    description (LAS 1.4 R15, "Other Specification Defined VLRs"), those of codes the run lacks
+    empty; names are cut to 15 bytes, characters outside ASCII become '?'."""
+    import laspy
+
+    lookup = laspy.vlrs.known.ClassificationLookupVlr()
+    for code in range(256):
+        lookup[code] = ""
+    for code, name in zip(codes, names, strict=True):
+        lookup[int(code)] = name.encode("ascii", "replace").decode("ascii")[:15]
+    return {"user_id": LAS_CLASS_LOOKUP[0], "record_id": LAS_CLASS_LOOKUP[1], "description": "Classification Lookup",
+            "data": lookup.record_data_bytes()}
+
+
+def read_class_lookup(metadata: dict[str, Any]) -> dict[int, str] | None:
+    """``{code: name}`` from a LAS cloud's Classification Lookup VLR (entries with a description),
+    or None. Descriptions are read up to their first NUL (laspy's own parser drops every character
+    that is not a letter, digit or space, '_' and '-' included)."""
+    for record in metadata.get("las_vlrs") or []:
+        if (record.get("user_id"), record.get("record_id")) == LAS_CLASS_LOOKUP:
+            data = bytes(record["data"])
+            entries = np.frombuffer(data[: len(data) // 16 * 16], np.dtype([("code", "u1"), ("name", "S15")]))
+            table = {int(e["code"]): e["name"].split(b"\0")[0].decode("ascii", "replace").strip() for e in entries}
+            return {code: name for code, name in sorted(table.items()) if name} or None
+    return None
+
+
+def with_class_lookup(metadata: dict[str, Any], codes: Sequence[int], names: Sequence[str]) -> dict[str, Any]:
+    """``metadata`` whose LAS VLRs hold the class table of ``codes`` (replacing any earlier one)."""
+    vlrs = [r for r in metadata.get("las_vlrs") or [] if (r.get("user_id"), r.get("record_id")) != LAS_CLASS_LOOKUP]
+    return {**metadata, "las_vlrs": [*vlrs, class_lookup_record(codes, names)]}
 
 
 def read_class_table(path: Path) -> dict[int, str]:
@@ -147,6 +186,9 @@ class LabelledClouds(SceneDataset):
         field = None
         for path in train_files:
             cloud, field = self._read_labelled(path)
+            lookup = read_class_lookup(cloud.metadata) if field == "classification" else None
+            if lookup:  # the table a LAS file carries in its header (segment predict writes it)
+                return list(lookup), list(lookup.values())
             present |= set(np.unique(cloud.fields[field]).tolist())
         codes = sorted(int(c) for c in present if c >= 0)
         if field == "classification":
@@ -183,25 +225,30 @@ class LabelledClouds(SceneDataset):
         return scan.select(kept)
 
 
-def as_scan(cloud: PointCloud, path: Path, name: str) -> PointCloud:
+def as_scan(cloud: PointCloud, path: Path, name: str, *, offset: np.ndarray | None = None,
+            intensity_scale: float | None = None) -> PointCloud:
     """A cloud as read, in the scene convention (module doc of :mod:`~.scene_base`), without labels.
 
     Colours become uint8, intensity is divided by its 99th percentile, and float64 coordinates
     (survey coordinates, UTM) are taken relative to the floor of their smallest finite corner,
     since float32 would lose their centimetres (the crops re-centre them anyway). Points keep
-    their order and number, non-finite ones included.
+    their order and number, non-finite ones included. ``offset`` (subtracted from float64
+    coordinates) and ``intensity_scale`` (the divisor), when given, are the whole scan's for a
+    piece of it; a piece may then have no finite point.
     """
     fields = {name: cloud.fields[name] for name in ("colors", "normals", "intensity") if name in cloud.fields}
     if "colors" in fields:
         fields["colors"] = _as_uint8_colours(fields["colors"][:, :3])
     if "intensity" in fields:
-        fields["intensity"] = _as_unit_intensity(fields["intensity"])
-    finite = np.isfinite(cloud.points).all(axis=1)
-    if not finite.any():
-        raise FormatError(path, "has no points with finite coordinates")
+        fields["intensity"] = _as_unit_intensity(fields["intensity"], intensity_scale)
     points = cloud.points
+    if offset is None:
+        finite = np.isfinite(points).all(axis=1)
+        if not finite.any():
+            raise FormatError(path, "has no points with finite coordinates")
+        offset = np.floor(points[finite].min(axis=0))
     if points.dtype == np.float64:
-        points = points - np.floor(points[finite].min(axis=0))
+        points = points - offset
     return PointCloud(points.astype(np.float32), fields, None, {"scan": name})
 
 
@@ -224,8 +271,10 @@ def _as_uint8_colours(colours: np.ndarray) -> np.ndarray:
     return np.clip(np.asarray(colours, np.float64) * scale, 0, 255).astype(np.uint8)
 
 
-def _as_unit_intensity(intensity: np.ndarray) -> np.ndarray:
-    """Intensity in about [0, 1]: divided by its 99th percentile (LAS stores 0..65535, KITTI 0..1)."""
+def _as_unit_intensity(intensity: np.ndarray, top: float | None = None) -> np.ndarray:
+    """Intensity in about [0, 1]: divided by its 99th percentile (LAS stores 0..65535, KITTI 0..1),
+    or by ``top`` when given."""
     values = np.asarray(intensity, np.float64)
-    top = np.percentile(values, 99) if len(values) else 1.0
+    if top is None:
+        top = np.percentile(values, 99) if len(values) else 1.0
     return (values / (top if top > 0 else 1.0)).astype(np.float32)
