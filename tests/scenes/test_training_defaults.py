@@ -50,8 +50,10 @@ def test_holdout_every_zero_trains_on_every_view_and_reports_training_psnr_only(
         evaluate(tmp_path / "run", device="cpu")
 
 
-def test_auto_downscale_brings_the_longest_side_to_480_px_on_a_cpu_and_1600_on_a_gpu():
+def test_auto_downscale_brings_the_longest_side_to_480_px_on_a_cpu_240_for_splats_and_1600_on_a_gpu():
     assert auto_downscale(sized(1920, 1080), torch.device("cpu"))[0] == 4  # 480 x 270
+    assert auto_downscale(sized(1920, 1080), torch.device("cpu"), "splat")[0] == 8  # 240 x 135: cost follows pixels
+    assert auto_downscale(sized(1920, 1080), torch.device("cuda"), "splat")[0] == 2
     assert auto_downscale(sized(1920, 1080), torch.device("cuda"))[0] == 2  # 960 x 540
     assert auto_downscale(sized(400, 300), torch.device("cpu"))[0] == 1
     assert auto_downscale(sized(4000, 3000), torch.device("cuda"))[0] == 4
