@@ -59,9 +59,11 @@ def neighbour_pairs(points: np.ndarray, radius: float, max_nn: int, tree: cKDTre
 
 def pair_scalars(points: np.ndarray, normals: np.ndarray, i: np.ndarray, j: np.ndarray
                  ) -> tuple[np.ndarray, ...]:
-    """``(length, d_i, d_j, c, t)`` of P pairs, each ``(P,)``, for ``d = p_j - p_i``: ``|d|``,
-    ``n_i . d``, ``n_j . d``, ``n_i . n_j`` and ``d . (n_i x n_j)``. Seen from j, ``d`` turns
-    round: ``d_i, d_j`` become ``-d_j, -d_i`` and ``c``, ``t`` stay."""
+    """The five scalars of P point pairs from which both directions' features follow, each ``(P,)``.
+
+    ``(length, d_i, d_j, c, t)`` for ``d = p_j - p_i``: ``|d|``, ``n_i . d``, ``n_j . d``,
+    ``n_i . n_j`` and ``d . (n_i x n_j)``. Seen from j, ``d`` turns round: ``d_i, d_j`` become
+    ``-d_j, -d_i`` and ``c``, ``t`` stay."""
     d = points[j] - points[i]
     n_i, n_j = normals[i], normals[j]
     length = np.sqrt(np.einsum("pi,pi->p", d, d))
