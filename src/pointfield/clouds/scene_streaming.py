@@ -56,7 +56,7 @@ from pointfield.streaming.chunks import StreamingFallback, open_source
 from pointfield.streaming.jobs import bytes_per_point, indexed_chunks, progress_bar, scratch_folder, template_of
 from pointfield.streaming.memory import parse_memory, resident_bytes, returning_freed_arrays
 from pointfield.streaming.spill import Spill, from_records
-from pointfield.streaming.tiling import _TileSpills
+from pointfield.streaming.tiling import TileSpills
 from pointfield.streaming.writers import open_writer
 
 HISTOGRAM_BINS = 1 << 16
@@ -346,7 +346,7 @@ def predict_streamed(
         origin = np.zeros(2)
         target.parent.mkdir(parents=True, exist_ok=True)
         with scratch_folder(target, scratch) as folder:
-            spills = _TileSpills(folder)
+            spills = TileSpills(folder)
             with progress_bar(source.count, f"tile {path.name}", progress) as bar:
                 for chunk, index in indexed_chunks(source, window, bar=bar):
                     levels.add(chunk)

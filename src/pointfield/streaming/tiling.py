@@ -95,7 +95,7 @@ def tile_name(stem: str, key: tuple[int, int], suffix: str) -> str:
     return f"{stem}_{key[0]}_{key[1]}{suffix}"
 
 
-class _TileSpills:
+class TileSpills:
     """One spill per tile under a folder, and the bounds of each tile's points."""
 
     def __init__(self, folder: Path, piece: int | None = None):
@@ -186,7 +186,7 @@ Spilled = dict[tuple[int, int], tuple[list[Path], tuple[np.ndarray, np.ndarray] 
 
 def _spill_tiles(job: Job, size: float, buffer: float, origin: np.ndarray, folder: Path) -> Spilled:
     """Sort the points into a spill per tile: tile -> (its spills, bounds of its finite points)."""
-    spills = _TileSpills(folder)
+    spills = TileSpills(folder)
     with progress_bar(job.source.count, f"tile {job.source.path.name}", job.progress) as bar:
         for chunk, _ in indexed_chunks(job.source, job.points, bar=bar):
             spills.add(chunk, size, buffer, origin)
@@ -231,7 +231,7 @@ def tile_scatter_task(path: str, options: dict[str, Any], start: int, stop: int,
                       buffer: float, origin: np.ndarray, folder: str, piece: int) -> dict[tuple[int, int], Any]:
     """Sort a piece's points into per-tile spills; ``{tile: (spill path, min, max)}``."""
     source = open_source(path, **options)
-    spills = _TileSpills(Path(folder), piece)
+    spills = TileSpills(Path(folder), piece)
     for chunk, _ in indexed_chunks(source, points, start, stop):
         spills.add(chunk, size, buffer, origin)
     return {key: (str(s.path), *spills.bounds.get(key, (None, None))) for key, s in spills.spills.items()}
