@@ -24,7 +24,7 @@ from pointfield.fields.train import train as train_field
 from pointfield.scenes import heldout, synthetic_scene
 from pointfield.splats.train import train as train_splats
 from pointfield.training import RunDirectory
-from pointfield.training.budget import FINAL_SHARE, FINISHING_SECONDS, TimeBudget
+from pointfield.training.budget import FINAL_SHARE, FINISHING_SECONDS, MEASURED_FINAL_SHARE, TimeBudget
 
 BUDGET = 30
 TOLERANCE = 8
@@ -79,7 +79,8 @@ def test_a_budget_keeps_a_share_for_the_final_evaluation_until_its_cost_is_measu
     budget = TimeBudget(100.0)
     assert budget.reserve(None) == FINAL_SHARE * 100.0  # not measured yet
     assert budget.reserve(1.0) == 1.0 + FINISHING_SECONDS  # cheap: all of it
-    assert budget.reserve(500.0) == FINAL_SHARE * 100.0  # dear: fewer views instead
+    assert budget.reserve(30.0) == 30.0 + FINISHING_SECONDS  # over a fifth: every view is still scored
+    assert budget.reserve(500.0) == MEASURED_FINAL_SHARE * 100.0  # dear: fewer views instead
     assert TimeBudget().reserve(500.0) == 0.0 and TimeBudget().left() == math.inf
 
 
