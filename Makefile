@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test test-guides lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos bench-predict clean
+.PHONY: demo test test-guides lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos bench-predict bench-threads bench-ground clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -56,7 +56,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos bench-predict
+bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos bench-predict bench-threads bench-ground
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -174,6 +174,14 @@ bench-occupancy: $(BIN)/.installed
 # A user's own photos with no options: from-images, splat train, nerf train, each within 10 minutes (issue 43)
 bench-photos: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_photos.py
+
+# OpenMP's waiting policy and a CPU training's speed with another program busy on a core (issue 43)
+bench-threads: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_threads.py
+
+# Ground in aerial lidar: CSF against models trained on the provider's labels (issues 44, 45)
+bench-ground: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_ground.py
 
 # The GPU path (issue 19): needs a CUDA GPU, so it is not part of `make bench`. A torch build with
 # CUDA goes in first: make bench-gpu TORCH="torch==2.13.0 --index-url https://download.pytorch.org/whl/cu126".

@@ -12,7 +12,15 @@ The functions most people need first::
     pointfield.classify.train(out="runs/shapes") # pointfield.classify / .segment: train, evaluate, predict
 """
 
+import os
 from typing import Any
+
+# torch's CPU wheels run their parallel operations on GNU OpenMP, whose threads spin while they
+# wait for each other. With another program busy on a core, a training step then runs many times
+# slower than on a quiet machine; threads that sleep at once (PASSIVE) avoid that cliff
+# (benchmarks/bench_threads.py measures both). libgomp reads the variable when torch loads it, so
+# this runs before anything imports torch; a value the user set is kept.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from pointfield.clouds import Mesh, PointCloud, Records, read, write
 from pointfield.errors import FormatError, PointfieldError
