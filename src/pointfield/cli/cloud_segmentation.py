@@ -142,15 +142,12 @@ def run_clusters(args: argparse.Namespace) -> int:
 
 
 def run_ground(args: argparse.Namespace) -> int:
-    from pointfield.clouds.ops import finite_rows
-    from pointfield.segmentation import ground_classification, ground_mask, iou
+    from pointfield.segmentation import default_cloth_resolution, ground_classification, ground_mask, iou
 
     cloud = _read(args.source)
     resolution = args.resolution
     if resolution is None:
-        finite = cloud.points[finite_rows(cloud.points)]
-        extent = np.ptp(finite[:, :2], axis=0)
-        resolution = 2.0 * float(np.sqrt(max(extent[0] * extent[1], 1e-12) / len(finite)))
+        resolution = default_cloth_resolution(cloud.points)
         print(f"cloth resolution {resolution:.4g} = 2 x the mean x-y spacing; set --resolution to override")
     threshold = resolution / 2 if args.threshold is None else args.threshold
     mask = ground_mask(cloud.points, cloth_resolution=resolution, rigidness=args.rigidness, class_threshold=threshold,

@@ -11,8 +11,8 @@ back as a field of the cloud.
 """
 
 from pointfield.segmentation.clusters import clusters_beside_planes, dbscan
-from pointfield.segmentation.ground import ground_classification, ground_mask, iou
+from pointfield.segmentation.ground import default_cloth_resolution, ground_classification, ground_mask, iou
 from pointfield.segmentation.planes import Plane, fit_plane, ransac_plane, segment_planes
 
-__all__ = ["Plane", "clusters_beside_planes", "dbscan", "fit_plane", "ground_classification", "ground_mask", "iou",
-           "ransac_plane", "segment_planes"]
+__all__ = ["Plane", "clusters_beside_planes", "dbscan", "default_cloth_resolution", "fit_plane", "ground_classification",
+           "ground_mask", "iou", "ransac_plane", "segment_planes"]

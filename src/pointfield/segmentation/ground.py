@@ -22,6 +22,14 @@ LAS_GROUND = 2
 LAS_UNCLASSIFIED = 1
 
 
+def default_cloth_resolution(points: np.ndarray) -> float:
+    """Twice the points' mean x-y spacing, ``2 sqrt(area of the x-y box / finite points)``: what ``cloud
+    ground`` uses when no ``--resolution`` is given (the threshold is then half of it)."""
+    finite = np.asarray(points)[finite_rows(points)]
+    extent = np.ptp(finite[:, :2], axis=0) if len(finite) else np.zeros(2)
+    return 2.0 * float(np.sqrt(max(extent[0] * extent[1], 1e-12) / max(len(finite), 1)))
+
+
 def ground_mask(points: np.ndarray, cloth_resolution: float = 0.5, rigidness: int = 3, class_threshold: float = 0.5,
                 slope_smooth: bool = False, iterations: int = 500, time_step: float = 0.65) -> np.ndarray:
     """``(N,)`` bool: the points of ``(N, 3)`` (z up) that the cloth settles on. NaN points are not ground.
