@@ -121,3 +121,19 @@ def test_dask_options_without_tiles_are_refused_in_one_line(rooms_run, tiles, tm
     assert main(["segment", "predict", str(rooms_run), str(folder / "strip_0.ply"), "--out", str(tmp_path),
                  "--workers", "2", "--device", "cpu"]) == 1
     assert "--workers and --scheduler predict the tiles of one scan" in capsys.readouterr().err
+
+
+def test_a_format_error_crosses_from_a_worker_process_whole():
+    import pickle
+
+    from pointfield.errors import FormatError
+
+    error = pickle.loads(pickle.dumps(FormatError("tiles/a.laz", "ends at byte 12")))
+    assert isinstance(error, FormatError) and (error.path, error.reason) == ("tiles/a.laz", "ends at byte 12")
+    assert str(error) == "tiles/a.laz: ends at byte 12"
+
+
+def test_outputs_that_would_overwrite_the_tiles_are_refused_before_any_work(rooms_run, tiles, capsys):
+    folder, _, _ = tiles
+    assert main(["segment", "predict", str(rooms_run), str(folder), "--out", str(folder), "--device", "cpu"]) == 1
+    assert "would overwrite a tile that its neighbours read" in capsys.readouterr().err

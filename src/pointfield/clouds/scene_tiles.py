@@ -209,7 +209,8 @@ def tile_targets(inputs: Sequence[str | os.PathLike[str]], out: Path) -> tuple[l
     for given in map(Path, inputs):
         if given.is_dir():
             # Outputs written inside the folder (a re-run into TILES/labelled) are not tiles.
-            found = [p for p in cloud_files(given) if not p.resolve().is_relative_to(out.resolve())]
+            inside = out.resolve() != given.resolve()  # OUT a folder within TILES/: not its own tiles
+            found = [p for p in cloud_files(given) if not (inside and p.resolve().is_relative_to(out.resolve()))]
             if not found:
                 raise PointfieldError(f"{given}: no point-cloud files in this folder")
             paths += found
