@@ -42,10 +42,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description="Write each FILE, labelled, to OUT/<name>.ply with an int32 'label' field "
         "(a mesh keeps its faces), and print how many points each part got. With a scene run, "
         "overlapping crops vote; OUT is a file (one FILE) or a folder of outputs named as their inputs, "
-        "with the labels (LAS: classification) and a 'confidence' field, and a .classes.json beside each.",
+        "with the labels (LAS: classification) and a 'confidence' field, and a .classes.json beside each. "
+        "A folder of tiles (or FILEs with --tiles) is predicted as one scan, each tile's crops seeing its "
+        "neighbours' points, into OUT/<tile name>, on Dask with --workers or --scheduler.",
     )
     predict.add_argument("run_dir", type=Path, metavar="RUN", help="a run folder from segment train")
-    predict.add_argument("files", type=Path, nargs="+", metavar="FILE", help="clouds or meshes")
+    predict.add_argument("files", type=Path, nargs="+", metavar="FILE", help="clouds or meshes, or folders of tiles")
     predict.add_argument("--out", type=Path, help="folder for the labelled clouds, or a file for one scan "
                          "(default: RUN/predictions)")
     predict.add_argument("--device", help="auto (default), cpu, cuda, cuda:N or mps")
