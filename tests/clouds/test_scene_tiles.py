@@ -80,8 +80,8 @@ def test_tiles_predicted_on_dask_get_the_labels_of_the_merged_scan(rooms_run, ti
     tiled = labelled(tmp_path / "tiles")
     assert np.array_equal(tiled.points, merged.points)
     assert np.array_equal(tiled.fields["label"], merged.fields["label"])
-    # The crops sharing a batch differ (a tile's are its own), which moves the scores by float rounding.
-    np.testing.assert_allclose(tiled.fields["confidence"], merged.fields["confidence"], atol=1e-5)
+    # The crops sharing a batch differ (a tile's are its own): every crop padded to the same size, only rounding could.
+    np.testing.assert_allclose(tiled.fields["confidence"], merged.fields["confidence"], atol=1e-6)
     assert len(np.unique(merged.fields["label"])) >= 2
     assert (tmp_path / "tiles" / "strip_0.ply.classes.json").is_file()
 
@@ -94,7 +94,7 @@ def test_without_the_halo_the_tiles_differ_from_the_merged_scan_at_the_seams(roo
     run.predict_tiles([folder], out=tmp_path / "tiles", client=threads)
     tiled = labelled(tmp_path / "tiles")
     differs = (tiled.fields["label"] != merged.fields["label"]) | ~np.isclose(
-        tiled.fields["confidence"], merged.fields["confidence"], atol=1e-5)
+        tiled.fields["confidence"], merged.fields["confidence"], atol=1e-6)
     from_cut = np.abs(merged.points[:, :1] - cuts[None].astype(np.float32)).min(axis=1)
     assert differs.sum() > 100  # windows cut off at the tiles' borders
     # Beyond a halo of every cut a tile alone is the whole scan: the seam is there and only there.

@@ -23,8 +23,8 @@ the streaming verbs), or one after another in this process without one:
 Why the halo suffices is :mod:`~.scene_streaming`'s argument, with the tile's bounding box in
 place of its square: every cover cell within a radius of the tile is whole in the box grown by
 the halo, so are the windows holding the tile's points and their grid cells. The labels are
-those of the merged cloud; only which crops share a batch differs, which moves the probabilities
-by float rounding (none with one crop per batch). A tile is read whole with its halo: tiles are
+those of the merged cloud; only which crops share a batch differs, which can move the probabilities
+by float rounding alone (:func:`~.scene_crops.vote` pads every crop to the run's size). A tile is read whole with its halo: tiles are
 meant to be of a size that fits a worker.
 
 A file that cannot be read is named in one line before anything is written (the survey reads
