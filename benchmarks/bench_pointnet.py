@@ -191,7 +191,7 @@ def train_same_recipe(model: nn.Module, epochs: int, shapes_per_class: int, seed
         log=lambda line: print("   ", line, flush=True))
     seconds = time.perf_counter() - start
     config = {"batch_size": 32, "task": "classify", "classes": list(train_set.classes)}
-    confusion = confusion_on(model, test_set, "classify", config, collate, torch.device("cpu"))
+    confusion, _ = confusion_on(model, test_set, "classify", config, collate, torch.device("cpu"))
     return accuracy(confusion), seconds
 
 

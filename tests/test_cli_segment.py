@@ -12,7 +12,7 @@ import pointfield
 from pointfield.cli import main
 from pointfield.clouds.cloud import PointCloud
 from pointfield.clouds.mesh import Mesh
-from pointfield.clouds.shapes import PART_NAMES, make_shape
+from pointfield.clouds.shapes import PART_NAMES, SHAPE_CLASSES, make_shape
 
 TINY = ["--shapes-per-class", "2", "--points", "64", "--epochs", "1", "--batch-size", "8",
         "--no-progress", "--device", "cpu"]
@@ -41,10 +41,18 @@ def test_train_writes_miou_and_part_names(run):
     assert "test_miou" in json.loads((run / "metrics.jsonl").read_text().splitlines()[0])
 
 
+def test_train_writes_the_per_shape_scores_of_shapenetpart(run):
+    final = json.loads((run / "metrics.json").read_text())
+    assert list(final["per_category"]) == list(SHAPE_CLASSES)  # every test shape is scored on its own parts
+    assert final["class_miou"] == pytest.approx(np.mean(list(final["per_category"].values())))
+    # The sphere has one part: a shape of it predicted within its category is all right.
+    assert final["per_category"]["sphere"] == 1.0 and 0 < final["instance_miou"] <= 1
+
+
 def test_eval_reports_iou_per_part(run, capsys):
     assert main(["segment", "eval", str(run)]) == 0
     out = capsys.readouterr().out
-    assert "mIoU" in out and "cylinder cap" in out
+    assert "mIoU" in out and "cylinder cap" in out and "instance mIoU" in out
 
 
 def test_predict_writes_every_point_labelled(run, tmp_path, capsys):

@@ -14,12 +14,15 @@ from pointfield.metrics import (
     class_accuracies,
     class_iou,
     confusion_matrix,
+    instance_mean_iou,
     mean_class_accuracy,
     mean_iou,
     mean_psnr,
     mean_ssim,
     psnr,
     psnr_from_mse,
+    restricted_argmax,
+    shape_part_iou,
     ssim,
 )
 
@@ -183,3 +186,53 @@ def test_ssim_gradient_on_cuda_matches_the_cpu_at_800_px():
         ssim(image, truth.to(device)).backward()
         gradients.append(image.grad.cpu())
     assert float((gradients[1] - gradients[0]).norm() / gradients[0].norm()) < 1e-3
+
+
+# -- ShapeNetPart's per-shape scores ------------------------------------------------------------
+
+
+def test_a_shapes_iou_is_the_mean_over_its_categorys_parts_an_absent_part_counting_one():
+    # part 0: 1 shared of 2 -> 1/2; part 1: 2 of 3 -> 2/3; part 2 in neither truth nor prediction -> 1
+    assert shape_part_iou([0, 0, 1, 1], [0, 1, 1, 1], (0, 1, 2)) == pytest.approx((1 / 2 + 2 / 3 + 1) / 3)
+    # a part of another category predicted is wrong for every part of this one: 36 -> 1/2, 37 -> 1
+    assert shape_part_iou([36, 36, 37], [36, 5, 37], (36, 37)) == pytest.approx(0.75)
+    assert shape_part_iou([4, 4], [5, 5], (4, 5)) == 0.0
+
+
+def test_the_restricted_argmax_picks_the_best_of_the_categorys_parts():
+    scores = torch.tensor([[0.1, 0.9, 0.3, 0.2], [0.0, 0.9, 0.1, 0.8]])
+    assert restricted_argmax(scores, (2, 3)).tolist() == [2, 3]  # part 1 wins overall, but is not theirs
+
+
+def test_instance_miou_averages_shapes_and_class_miou_averages_categories():
+    # category 0: shapes of IoU 0.5 and 1.0; category 1: one of 0.25; category 2: no test shape
+    instance, by_class, per_category = instance_mean_iou(np.array([[1.5, 0.25, 0.0], [2, 1, 0]]))
+    assert instance == pytest.approx(1.75 / 3)
+    assert by_class == pytest.approx((0.75 + 0.25) / 2)
+    assert per_category[:2].tolist() == [0.75, 0.25] and math.isnan(per_category[2])
+
+
+def test_evaluation_scores_each_shape_on_its_categorys_parts_as_pointcept_does():
+    """A model that always ranks part 3 first, then part 0: restricted to its category's parts, a
+    shape of category 0 (parts 0, 1) is predicted all part 0, one of category 1 (parts 2, 3) all part 3."""
+    from pointfield.clouds.cloud import PointCloud
+    from pointfield.clouds.datasets import CloudCollate
+    from pointfield.clouds.datasets.base import InMemoryClouds
+    from pointfield.clouds.tasks import confusion_on, shape_scores
+
+    class Fixed(torch.nn.Module):
+        def forward(self, points, features, mask):
+            return torch.tensor([0.2, 0.1, 0.0, 0.9]).expand(*points.shape[:2], 4)
+
+    shapes = InMemoryClouds()
+    for category, labels in ((0, [0, 0, 1, 1]), (1, [2, 2, 2, 3])):
+        shapes.clouds.append(PointCloud(np.eye(4, 3, dtype=np.float32), {"label": np.array(labels)}))
+        shapes.labels.append(category)
+    config = {"task": "segment", "parts": ["a0", "a1", "b0", "b1"], "batch_size": 2}
+    confusion, totals = confusion_on(Fixed(), shapes, "segment", config, CloudCollate([], point_labels=True),
+                                     torch.device("cpu"), category_parts=[(0, 1), (2, 3)])
+    assert confusion[:, 3].sum() == 8  # the plain argmax: part 3 everywhere
+    # category 0: part 0 -> 2/4, part 1 -> 0: 0.25; category 1: part 2 -> 0, part 3 -> 1/4: 0.125
+    scores = shape_scores(totals, ["a", "b"])
+    assert scores["per_category"] == pytest.approx({"a": 0.25, "b": 0.125})
+    assert scores["instance_miou"] == pytest.approx(0.1875) and scores["class_miou"] == pytest.approx(0.1875)

@@ -34,6 +34,11 @@ class FormatError(PointfieldError, ValueError):
         self.reason = message
         super().__init__(f"{self.path}: {message}")
 
+    def __reduce__(self):
+        # Pickled by its own arguments, so that it crosses from a Dask worker process whole
+        # (the default rebuilds it from the one joined message, which __init__ refuses).
+        return type(self), (self.path, self.reason)
+
 
 class OptionError(PointfieldError, ValueError):
     """An option's value cannot be used (``--memory lots``, a budget below the minimum); the message

@@ -8,6 +8,12 @@ distributed run, and every score below is exact for the whole set.
 Rendered views are scored by PSNR and SSIM, one view at a time (:func:`psnr`, :func:`ssim`); a
 set of held-out views by the mean of the per-view scores (:func:`mean_psnr`, :func:`mean_ssim`),
 the one held-out definition every model in pointfield reports.
+
+Part segmentation (ShapeNetPart) is scored per shape as well, as PointNet, PointNet++ and Pointcept
+report it (:func:`shape_part_iou`, :func:`instance_mean_iou`): a shape's IoU is the mean, over the
+parts of *its category*, of each part's IoU, a part absent from both prediction and truth counting
+1; the instance mIoU is the mean over shapes, the class mIoU the mean over categories of their
+shapes' mean. These need each shape's category, which a confusion matrix forgets.
 """
 
 from __future__ import annotations
@@ -90,6 +96,52 @@ def mean_iou(confusion: np.ndarray) -> float:
     iou = class_iou(confusion)
     present = ~np.isnan(iou)
     return float(iou[present].mean()) if present.any() else float("nan")
+
+
+def shape_part_iou(target: ArrayLike, predicted: ArrayLike, parts: Sequence[int]) -> float:
+    """One shape's IoU: the mean over ``parts`` (its category's part labels) of each part's IoU.
+
+    ``target`` and ``predicted`` ``(N,)`` hold the part label of each of the shape's points. A part
+    that neither holds a point nor is predicted counts as IoU 1 (PointNet's evaluation, which
+    Pointcept keeps): a mug's prediction is not punished for a handle its scan does not show. A
+    prediction outside ``parts`` is wrong for every part; Pointcept restricts the scores to the
+    category's parts before the argmax (:func:`restricted_argmax`) so that it never happens.
+    """
+    target, predicted = _to_numpy(target).ravel(), _to_numpy(predicted).ravel()
+    if target.shape != predicted.shape:
+        raise ValueError(f"target and predicted differ in shape: {target.shape} vs {predicted.shape}")
+    if len(parts) == 0:
+        raise ValueError("a shape's category needs at least one part")
+    ious = []
+    for part in parts:
+        truth, guess = target == part, predicted == part
+        union = np.count_nonzero(truth | guess)
+        ious.append(1.0 if union == 0 else np.count_nonzero(truth & guess) / union)
+    return float(np.mean(ious))
+
+
+def restricted_argmax(scores: torch.Tensor, parts: Sequence[int]) -> torch.Tensor:
+    """``(N,)`` the best part among ``parts`` (global labels) of each row of ``scores`` ``(N, P)``:
+    the prediction once the shape's category is known, as Pointcept scores ShapeNetPart."""
+    allowed = torch.as_tensor(list(parts), dtype=torch.long, device=scores.device)
+    return allowed[scores[:, allowed].argmax(dim=-1)]
+
+
+def instance_mean_iou(totals: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """``(instance mIoU, class mIoU, (C,) mIoU per category)`` from per-category totals.
+
+    ``totals`` ``(2, C)``: row 0 the sum of :func:`shape_part_iou` over the shapes of each
+    category, row 1 their number (sums add over batches and processes, as confusion matrices
+    do). Instance mIoU: the mean over all shapes; class mIoU: the mean over the categories with
+    shapes of their own mean; a category without shapes is NaN and left out.
+    """
+    sums, counts = np.asarray(totals, np.float64)
+    if counts.sum() == 0:
+        return float("nan"), float("nan"), np.full(len(counts), np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per_category = np.where(counts > 0, sums / counts, np.nan)
+    present = counts > 0
+    return float(sums.sum() / counts.sum()), float(per_category[present].mean()), per_category
 
 
 def _to_numpy(values: ArrayLike) -> np.ndarray:

@@ -225,6 +225,7 @@ def test_shapenetpart_trains_on_train_and_val_with_50_global_parts(shapenetpart)
     train, test = ShapeNetPart(shapenetpart, "train"), ShapeNetPart(shapenetpart, "test")
     assert train.classes == ["Airplane", "Mug"] and len(train) == 3 and len(test) == 1
     assert len(train.parts) == 50 and PART_NAMES[36] == "Mug 0"
+    assert train.category_parts == [(0, 1, 2, 3), (36, 37)]  # what each shape is scored on
     cloud, label = test[0]
     assert label == 1 and sorted(set(cloud.fields["label"].tolist())) == [36, 37]
     assert cloud.fields["normals"].shape == (20, 3)
@@ -295,3 +296,7 @@ def test_segment_train_on_shapenetpart_learns_its_50_parts(shapenetpart, tmp_pat
     metrics = pointfield.segment.train(shapenetpart, out=tmp_path / "run", epochs=1, points=16, batch_size=2,
                                        device="cpu", progress=False, normals=True)
     assert len(metrics["per_class"]) == 50 and "Mug 1" in metrics["per_class"]
+    # ShapeNetPart's own scores beside the part IoUs: the one test shape is a mug, so the airplane has none.
+    assert metrics["per_category"]["Airplane"] is None
+    assert metrics["class_miou"] == metrics["instance_miou"] == metrics["per_category"]["Mug"]
+    assert json.loads((tmp_path / "run" / "metrics.json").read_text())["instance_miou"] == metrics["instance_miou"]

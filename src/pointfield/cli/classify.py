@@ -149,6 +149,8 @@ def run_eval(args: argparse.Namespace, task: str) -> int:
         return 0
     print(f"{metrics['samples']} test clouds: {_scores_line(metrics)}")
     print_per_class(metrics["per_class"], "IoU" if task == "segment" else "accuracy")
+    if "per_category" in metrics:
+        print_per_class(metrics["per_category"], "mIoU")
     return 0
 
 
@@ -176,4 +178,6 @@ def _scores_line(metrics: dict[str, Any]) -> str:
              f"mean class accuracy {metrics['mean_class_accuracy']:.4f}"]
     if "miou" in metrics:
         parts.append(f"mIoU {metrics['miou']:.4f}")
+    if "instance_miou" in metrics:  # ShapeNetPart's per-shape scores
+        parts.append(f"instance mIoU {metrics['instance_miou']:.4f}, class mIoU {metrics['class_miou']:.4f}")
     return ", ".join(parts)

@@ -11,7 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
-from pointfield.cli import segment_scenes
+from pointfield.cli import segment_scenes, segment_tiles
 from pointfield.cli.classify import DEFAULT_RUN_COST, add_eval_parser, add_training_arguments
 
 
@@ -42,22 +42,28 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description="Write each FILE, labelled, to OUT/<name>.ply with an int32 'label' field "
         "(a mesh keeps its faces), and print how many points each part got. With a scene run, "
         "overlapping crops vote; OUT is a file (one FILE) or a folder of outputs named as their inputs, "
-        "with the labels (LAS: classification) and a 'confidence' field, and a .classes.json beside each.",
+        "with the labels (LAS: classification) and a 'confidence' field, and a .classes.json beside each. "
+        "A folder of tiles (or FILEs with --tiles) is predicted as one scan, each tile's crops seeing its "
+        "neighbours' points, into OUT/<tile name>, on Dask with --workers or --scheduler.",
     )
     predict.add_argument("run_dir", type=Path, metavar="RUN", help="a run folder from segment train")
-    predict.add_argument("files", type=Path, nargs="+", metavar="FILE", help="clouds or meshes")
+    predict.add_argument("files", type=Path, nargs="+", metavar="FILE", help="clouds or meshes, or folders of tiles")
     predict.add_argument("--out", type=Path, help="folder for the labelled clouds, or a file for one scan "
                          "(default: RUN/predictions)")
     predict.add_argument("--device", help="auto (default), cpu, cuda, cuda:N or mps")
     predict.add_argument("--json", action="store_true", help="print JSON")
     segment_scenes.add_predict_scale_options(predict)
+    segment_tiles.add_tile_options(predict)
     predict.set_defaults(run=run_predict)
     segment_scenes.add_make_scenes_parser(verbs)
 
 
 def run_predict(args: argparse.Namespace) -> int:
     """Label the files with an object run (answers count ``parts``) or a scene run (``classes``)."""
-    if segment_scenes.scene_run_task(args.run_dir):
+    if segment_scenes.scene_run_task(args.run_dir) and segment_tiles.wants_tiles(args):
+        answers = segment_tiles.run_predict_tiles(args)
+        counted = "classes"
+    elif segment_scenes.scene_run_task(args.run_dir):
         from pointfield.clouds.scene_tasks import open_scene_run
 
         answers = open_scene_run(args.run_dir, args.device).predict(args.files, out=args.out,
@@ -65,7 +71,11 @@ def run_predict(args: argparse.Namespace) -> int:
         counted = "classes"
     else:
         from pointfield.clouds import run
+        from pointfield.errors import PointfieldError
 
+        if args.tiles or args.workers is not None or args.scheduler is not None:
+            raise PointfieldError(f"{args.run_dir}: --tiles, --workers and --scheduler are for scene runs; "
+                                  "this run labels objects")
         answers = run.predict("segment", args.run_dir, args.files, device=args.device, out=args.out)
         counted = "parts"
     if args.json:

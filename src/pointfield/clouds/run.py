@@ -44,6 +44,7 @@ from pointfield.clouds.tasks import (
     open_data,
     per_class_scores,
     scores_of,
+    shape_scores,
 )
 from pointfield.errors import FormatError, PointfieldError
 from pointfield.training.lifecycle import open_run as open_trained
@@ -70,7 +71,9 @@ class CloudRun(Run):
 
         Returns ``accuracy``, ``mean_class_accuracy`` (and ``miou`` for segmentation), the score
         of each class (``per_class``: accuracy, or IoU for segmentation), the ``confusion``
-        matrix as a list of rows, and the number of ``samples``.
+        matrix as a list of rows, and the number of ``samples``. Part segmentation of categories
+        with fixed parts (ShapeNetPart, the synthetic shapes) adds ShapeNetPart's per-shape scores:
+        ``instance_miou``, ``class_miou`` and ``per_category`` (:func:`~pointfield.metrics.shape_part_iou`).
         """
         config, task = self.config, self.task
         self.warn_if_unfinished("these scores are")
@@ -89,10 +92,12 @@ class CloudRun(Run):
             )
         collate = CloudCollate(config["features"], point_labels=task == "segment")
         dataset = dataset.with_transform(evaluation_transform(config["points"]))
-        confusion = confusion_on(self.module, dataset, task, config, collate, self.device)
+        confusion, totals = confusion_on(self.module, dataset, task, config, collate, self.device,
+                                         category_parts=dataset.category_parts)
         return {
             **scores_of(confusion, task),
             "per_class": per_class_scores(confusion, task, label_names(config)),
+            **shape_scores(totals, config["classes"]),
             "confusion": confusion.tolist(),
             "samples": len(dataset),
         }

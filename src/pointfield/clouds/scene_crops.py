@@ -279,7 +279,9 @@ def vote(
     first window is run.
     """
     finder = CropFinder(scene.points, radius, shape)
-    collate = CloudCollate(features)
+    # Every crop padded to ``points``: its scores are then its own, whichever crops share its batch,
+    # so a scan's tiles, streamed or in separate files, get the votes the whole scan gives them.
+    collate = CloudCollate(features, length=points)
     totals = np.zeros((len(scene), classes), np.float64)
     counts = np.zeros(len(scene), np.int64)
     counted = np.zeros(len(scene), bool) if bar is not None else None

@@ -456,29 +456,38 @@ class SceneRun(Run):
                 answer = predict_streamed(self.module, self.config, self.device, path, target,
                                           memory if memory is not None else _free_memory(), progress=progress,
                                           scratch=scratch)
-                self._write_class_table(target)
+                write_class_table(target, self.config)
             else:
                 answer = self._predict_file(path, target, progress)
             answers.append(answer)
         return answers
 
-    def _write_class_table(self, target: Path) -> None:
-        table = target.with_name(target.name + ".classes.json")
-        with atomic_path(table) as tmp:
-            tmp.write_text(json.dumps({str(c): n for c, n in zip(self.config["codes"], self.config["classes"])},
-                                      indent=1))
+    def predict_tiles(
+        self, inputs: Sequence[str | os.PathLike[str]], *, out: str | os.PathLike[str] | None = None,
+        workers: int | None = None, scheduler: str | None = None, client: Any = None, progress: bool = False,
+    ) -> list[dict[str, Any]]:
+        """Label the tiles of one scan, a task per tile, each with its neighbours' points within a halo, so
+        that the labels are those of the tiles merged into one cloud (:mod:`~pointfield.clouds.scene_tiles`).
+
+        ``inputs`` are tile files and folders of them (their cloud files at any depth); each tile is
+        written, as :meth:`predict` writes a file, to ``out`` (a folder, default ``RUN/predictions``)
+        under its own name (a folder's files under their paths inside it). ``workers`` starts a
+        local Dask cluster of that many processes, ``scheduler`` joins a running one, ``client`` is
+        one the caller has; none of them: one tile after another in this process. Returns one dict
+        per tile: ``file``, ``output``, ``points``, ``classes`` and ``neighbours``.
+        """
+        from pointfield.clouds.scene_tiles import predict_tiles, tile_targets
+
+        paths, targets = tile_targets(inputs, Path(out) if out is not None else self.path / "predictions")
+        return predict_tiles(self.module, self.config, self.device, paths, targets, workers=workers,
+                             scheduler=scheduler, client=client, progress=progress)
 
     def _predict_file(self, path: Path, target: Path, progress: bool = False) -> dict[str, Any]:
-        from pointfield.clouds.datasets.labelled import with_class_lookup
         from pointfield.clouds.scene_streaming import frame_of
 
         config = self.config
         data = read(path)
-        if not isinstance(data, PointCloud):
-            raise FormatError(path, "holds records without x y z coordinates, not a point cloud")
-        for feature, field in (("colour", "colors"), ("intensity", "intensity")):
-            if feature in config["features"] and field not in data.fields:
-                raise FormatError(path, f"has no {field!r} field, which this model takes as input")
+        check_scan_fields(data, path, config)
         frame = frame_of(data, path)
         scan = as_scan(data, path, path.name, offset=frame.offset, intensity_scale=frame.intensity_scale)
         prepared, inverse = prepare_scene(scan, config["grid"], config["features"], path.name, return_inverse=True,
@@ -488,35 +497,64 @@ class SceneRun(Run):
                                  shape=config["shape"], features=config["features"],
                                  classes=len(config["classes"]), device=self.device,
                                  batch_size=config["batch_size"], bar=bar)
-        best = probabilities.argmax(axis=1)
-        codes = np.asarray(config["codes"], np.int64)
-        real = inverse >= 0
-        labels = np.full(len(data), -1, np.int64)
-        confidence = np.zeros(len(data), np.float32)
-        labels[real] = codes[best[inverse[real]]]
-        confidence[real] = probabilities[inverse[real], best[inverse[real]]]
-        fields = dict(data.fields)
-        metadata = dict(data.metadata)
-        if target.suffix.lower() in LAS_SUFFIXES:
-            if codes.min() < 0 or codes.max() > 255:
-                raise PointfieldError(f"{target}: LAS classification holds 0..255; this run's codes are "
-                                      f"{codes.min()}..{codes.max()}: write .ply instead")
-            fields["classification"] = np.where(real, labels, 0).astype(np.uint8)
-            metadata = with_class_lookup(metadata, codes.tolist(), config["classes"])
-        else:
-            fields["label"] = labels.astype(np.int32)
-        fields["confidence"] = confidence
-        target.parent.mkdir(parents=True, exist_ok=True)
-        if isinstance(data, Mesh):
-            labelled = Mesh(data.points, fields, data.shape, metadata, faces=data.faces,
-                            face_fields=dict(data.face_fields))
-        else:
-            labelled = PointCloud(data.points, fields, data.shape, metadata)
-        write(target, labelled)
-        self._write_class_table(target)
-        counts = np.bincount(best[inverse[real]], minlength=len(config["classes"]))
-        return {"file": str(path), "output": str(target), "points": len(data),
-                "classes": {n: int(c) for n, c in zip(config["classes"], counts) if c}}
+        return write_labelled(data, path, target, probabilities, inverse, config)
+
+
+def check_scan_fields(data: Any, path: Path, config: dict[str, Any]) -> None:
+    """Refuse a file that is not a point cloud, or lacks a field the run's features read."""
+    if not isinstance(data, PointCloud):
+        raise FormatError(path, "holds records without x y z coordinates, not a point cloud")
+    for feature, field in (("colour", "colors"), ("intensity", "intensity")):
+        if feature in config["features"] and field not in data.fields:
+            raise FormatError(path, f"has no {field!r} field, which this model takes as input")
+
+
+def write_labelled(data: PointCloud, path: Path, target: Path, probabilities: np.ndarray, inverse: np.ndarray,
+                   config: dict[str, Any]) -> dict[str, Any]:
+    """Write ``data`` (read from ``path``) to ``target`` with each point's label and confidence.
+
+    ``probabilities`` ``(M, classes)`` are the voted grid points'; ``inverse`` ``(N,)`` each point's
+    grid point, -1 for a non-finite one (label -1, LAS 0; confidence 0). Writes the class table
+    beside the output; returns the answer :meth:`SceneRun.predict` gives for the file.
+    """
+    best = probabilities.argmax(axis=1)
+    codes = np.asarray(config["codes"], np.int64)
+    real = inverse >= 0
+    labels = np.full(len(data), -1, np.int64)
+    confidence = np.zeros(len(data), np.float32)
+    labels[real] = codes[best[inverse[real]]]
+    confidence[real] = probabilities[inverse[real], best[inverse[real]]]
+    fields = dict(data.fields)
+    metadata = dict(data.metadata)
+    if target.suffix.lower() in LAS_SUFFIXES:
+        from pointfield.clouds.datasets.labelled import with_class_lookup
+
+        if codes.min() < 0 or codes.max() > 255:
+            raise PointfieldError(f"{target}: LAS classification holds 0..255; this run's codes are "
+                                  f"{codes.min()}..{codes.max()}: write .ply instead")
+        fields["classification"] = np.where(real, labels, 0).astype(np.uint8)
+        metadata = with_class_lookup(metadata, codes.tolist(), config["classes"])
+    else:
+        fields["label"] = labels.astype(np.int32)
+    fields["confidence"] = confidence
+    target.parent.mkdir(parents=True, exist_ok=True)
+    if isinstance(data, Mesh):
+        labelled = Mesh(data.points, fields, data.shape, metadata, faces=data.faces,
+                        face_fields=dict(data.face_fields))
+    else:
+        labelled = PointCloud(data.points, fields, data.shape, metadata)
+    write(target, labelled)
+    write_class_table(target, config)
+    counts = np.bincount(best[inverse[real]], minlength=len(config["classes"]))
+    return {"file": str(path), "output": str(target), "points": len(data),
+            "classes": {n: int(c) for n, c in zip(config["classes"], counts) if c}}
+
+
+def write_class_table(target: Path, config: dict[str, Any]) -> None:
+    """``<target>.classes.json``: each code of the run's classes to its name."""
+    table = target.with_name(target.name + ".classes.json")
+    with atomic_path(table) as tmp:
+        tmp.write_text(json.dumps({str(c): n for c, n in zip(config["codes"], config["classes"])}, indent=1))
 
 
 def _free_memory() -> int:

@@ -130,6 +130,7 @@ class SyntheticShapes(CloudDataset):
         self.split = split
         self.classes = list(classes)
         self.parts = list(PART_NAMES)
+        self.category_parts = [tuple(PART_NAMES.index(part) for part in SHAPE_PARTS[name]) for name in self.classes]
         self.shapes_per_class = shapes_per_class or (100 if split == "train" else 30)
         low, high = (points, points) if isinstance(points, int) else points
         if not 0 < low <= high:

@@ -61,8 +61,11 @@ from pointfield.metrics import (
     class_accuracies,
     class_iou,
     confusion_matrix,
+    instance_mean_iou,
     mean_class_accuracy,
     mean_iou,
+    restricted_argmax,
+    shape_part_iou,
 )
 from pointfield.training import lifecycle
 from pointfield.training.distributed import shard, wrap
@@ -227,6 +230,7 @@ class CloudTask(Task):
         self.train_set = train_set.with_transform(training_transform(config["points"]))
         self.test_set = test_set.with_transform(evaluation_transform(config["points"]))
         self.confusion: np.ndarray | None = None
+        self.shape_totals: np.ndarray | None = None
         if distributed is None or distributed.is_main:
             print(f"{self.name} {config['model']}: {self.parameters:,} parameters on {device}; "
                   f"{config['data_description']}")
@@ -259,19 +263,21 @@ class CloudTask(Task):
     def evaluate(self, epoch: int) -> dict[str, float]:
         if self.distributed is not None:
             self.distributed.broadcast_buffers(self.model)  # one model scored, and saved, on every rank
-        self.confusion = confusion_on(
-            self.model, self.test_set, self.name, self.config, self.collate, self.device, self.distributed
+        self.confusion, self.shape_totals = confusion_on(
+            self.model, self.test_set, self.name, self.config, self.collate, self.device, self.distributed,
+            self.test_set.category_parts,
         )
-        return {f"test_{k}": v for k, v in scores_of(self.confusion, self.name).items()}
+        scores = {**scores_of(self.confusion, self.name), **shape_scores(self.shape_totals, self.config["classes"])}
+        return {f"test_{k}": v for k, v in scores.items() if not isinstance(v, dict)}
 
     def draw(self, run: RunDirectory, history: list[dict[str, Any]]) -> None:
         plot_training_curves(history, run.path / CURVES_PNG, title=_title(self.config))
 
     def finish(self, run: RunDirectory, state: TrainingState) -> dict[str, Any]:
-        confusion = self.confusion
+        confusion, totals = self.confusion, self.shape_totals
         if confusion is None:  # a resumed run that had already finished its epochs
-            confusion = confusion_on(self.model, self.test_set, self.name, self.config, self.collate,
-                                     self.device, self.distributed)
+            confusion, totals = confusion_on(self.model, self.test_set, self.name, self.config, self.collate,
+                                             self.device, self.distributed, self.test_set.category_parts)
         if self.distributed is None or self.distributed.is_main:
             plot_confusion_matrix(confusion, label_names(self.config), run.path / CONFUSION_PNG,
                                   title=_title(self.config))
@@ -280,6 +286,7 @@ class CloudTask(Task):
         return {
             **scores_of(confusion, self.name),
             "per_class": per_class_scores(confusion, self.name, label_names(self.config)),
+            **shape_scores(totals, self.config["classes"]),
             "epochs": state.epoch,
             "test_samples": len(self.test_set),
             "train_samples": len(self.train_set),
@@ -430,27 +437,42 @@ def confusion_on(
     collate: CloudCollate,
     device: torch.device,
     dist_info: Any = None,
-) -> np.ndarray:
-    """The confusion matrix of ``model`` over ``dataset`` (summed over processes)."""
+    category_parts: Sequence[Sequence[int]] | None = None,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The confusion matrix of ``model`` over ``dataset`` (summed over processes), and for part
+    segmentation with ``category_parts`` (each class's part labels), the ``(2, C)`` totals of the
+    shapes' IoUs per category (:func:`~pointfield.metrics.instance_mean_iou`), each shape's
+    prediction restricted to its category's parts as Pointcept scores ShapeNetPart; else None."""
     classes = len(label_names(config))
     subset = torch.utils.data.Subset(dataset, shard(len(dataset), dist_info))
     loader = torch.utils.data.DataLoader(
         subset, batch_size=config["batch_size"], shuffle=False, collate_fn=collate
     )
     confusion = np.zeros((classes, classes), np.int64)
+    by_shape = task == "segment" and category_parts is not None
+    totals = np.zeros((2, len(category_parts)), np.float64) if by_shape else None
     was_training = model.training
     model.eval()
     with torch.inference_mode():
         for batch in loader:
             batch = batch.to(device)
-            predicted = model(batch.points, batch.features, batch.mask).argmax(dim=-1)
+            scores = model(batch.points, batch.features, batch.mask)
+            predicted = scores.argmax(dim=-1)
             target = batch.labels if task == "classify" else batch.point_labels
             confusion += confusion_matrix(target, predicted, classes)
+            if totals is not None:
+                for row, category in enumerate(batch.labels.tolist()):
+                    real = batch.point_labels[row] >= 0
+                    parts = category_parts[category]
+                    guess = restricted_argmax(scores[row][real], parts)
+                    totals[0, category] += shape_part_iou(batch.point_labels[row][real], guess, parts)
+                    totals[1, category] += 1
     model.train(was_training)
     if dist_info is not None:
-        totals = torch.from_numpy(confusion).to(device)
-        confusion = dist_info.all_reduce_sum(totals).cpu().numpy()
-    return confusion
+        confusion = dist_info.all_reduce_sum(torch.from_numpy(confusion).to(device)).cpu().numpy()
+        if totals is not None:
+            totals = dist_info.all_reduce_sum(torch.from_numpy(totals).to(device)).cpu().numpy()
+    return confusion, totals
 
 
 def scores_of(confusion: np.ndarray, task: str) -> dict[str, float]:
@@ -458,6 +480,16 @@ def scores_of(confusion: np.ndarray, task: str) -> dict[str, float]:
     if task == "segment":
         scores["miou"] = mean_iou(confusion)
     return scores
+
+
+def shape_scores(totals: np.ndarray | None, categories: Sequence[str]) -> dict[str, Any]:
+    """``instance_miou``, ``class_miou`` and ``per_category`` mIoU (None: no test shape) from the
+    totals of :func:`confusion_on`; nothing when there are none (no categories with fixed parts)."""
+    if totals is None:
+        return {}
+    instance, by_class, per_category = instance_mean_iou(totals)
+    return {"instance_miou": instance, "class_miou": by_class,
+            "per_category": {name: None if np.isnan(v) else float(v) for name, v in zip(categories, per_category)}}
 
 
 def per_class_scores(confusion: np.ndarray, task: str, names: Sequence[str]) -> dict[str, float | None]:

@@ -31,11 +31,14 @@ class CloudDataset(torch.utils.data.Dataset):
 
     Attributes every dataset sets: ``classes`` (class names, index = label), ``parts`` (names of
     the per-point labels, or None when clouds carry none) and ``root`` (where the data came
-    from, or None).
+    from, or None). Part datasets whose categories own fixed parts (ShapeNetPart, the synthetic
+    shapes) also set ``category_parts``: for each class, the part labels its shapes can have,
+    which the per-shape scores need (:func:`pointfield.metrics.shape_part_iou`).
     """
 
     classes: list[str]
     parts: list[str] | None = None
+    category_parts: list[tuple[int, ...]] | None = None
     root: Path | None = None
 
     def __init__(self, transform: Callable | None = None, seed: int = 0):

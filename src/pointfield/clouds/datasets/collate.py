@@ -54,18 +54,22 @@ class CloudCollate:
     ``features`` names the per-point fields fed to the model besides xyz, in order (e.g.
     ``("normals",)``); their components are concatenated into ``CloudBatch.features``.
     ``point_labels`` True collects the ``label`` field for segmentation. A cloud with no points
-    is an error here, never a silent NaN later.
+    is an error here, never a silent NaN later. Clouds are padded to the longest of the batch, or
+    to ``length`` if that is longer: with a fixed ``length`` a cloud's scores do not depend on the
+    clouds it shares a batch with (PointNet++ takes as many first-level centroids as the batch
+    is long, up to 512, repeating a short cloud's start point), which whole-scan prediction needs.
     """
 
-    def __init__(self, features: Sequence[str] = (), point_labels: bool = False):
+    def __init__(self, features: Sequence[str] = (), point_labels: bool = False, length: int | None = None):
         self.features = tuple(features)
         self.point_labels = point_labels
+        self.length = length or 0
 
     def __call__(self, samples: Sequence[tuple[PointCloud, int]]) -> CloudBatch:
         sizes = [len(cloud) for cloud, _ in samples]
         if min(sizes) == 0:
             raise PointfieldError("a cloud in the batch has no points")
-        batch, size = len(samples), max(sizes)
+        batch, size = len(samples), max(*sizes, self.length)
         points = torch.zeros(batch, size, 3)
         for cloud, _ in samples:  # every sample checked first: the error names the file that lacks a field
             for name in self.features:

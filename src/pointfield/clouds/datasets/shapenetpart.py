@@ -113,6 +113,7 @@ class ShapeNetPart(InMemoryClouds):
         by_synset = read_categories(self.root / CATEGORY_FILE)
         self.classes = [c for c in by_synset.values() if categories is None or c in categories]
         self.parts = list(PART_NAMES)
+        self.category_parts = [CATEGORY_PARTS[c] for c in self.classes]
         shapes = []
         for name in LISTS[split]:
             shapes += read_file_list(self.root / SPLIT_FOLDER / f"shuffled_{name}_file_list.json")

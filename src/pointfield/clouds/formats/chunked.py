@@ -112,6 +112,8 @@ class RecordSource(ChunkSource):
         self.path, self.dtype, self.offset, self.count = path, dtype, offset, count
         self.convert, self.format_name = convert, format_name
         size = path.stat().st_size
+        if dtype.itemsize == 0 and count:  # a header declaring records of no values (a hostile file)
+            raise FormatError(path, f"its header declares {count:,} {what} records that hold no values")
         whole = (size - offset) // dtype.itemsize if size > offset else 0
         if whole < count:
             inside = size - offset - whole * dtype.itemsize
