@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from pointfield.cli import main
 from pointfield.geometry.tsdf import TSDFVolume, allocation_stride
-from pointfield.registration.fragments import fragment_pose_graph, fragment_poses, split_fragments
+from pointfield.registration.fragments import fragment_pose_graph, fragment_poses, nearest_pairs, split_fragments
 from pointfield.registration.odometry import Intrinsics, absolute_trajectory_error, backproject, rgbd_odometry
 from pointfield.registration.scan import Scan
 from pointfield.scenes import read_scene
@@ -213,6 +213,19 @@ def test_a_fragments_own_pose_graph_closes_its_keyframe_loop_and_prunes_a_slid_r
     assert end_to_start(poses) < end_to_start(drifted) / 10
     assert absolute_trajectory_error(poses, truth) < 0.8 * absolute_trajectory_error(drifted, truth)
     np.testing.assert_allclose(poses[0], drifted[0])  # the fragment's first camera stays where it was
+
+
+def test_loop_candidates_grow_as_n_times_the_cap_and_keep_each_fragments_nearest():
+    """200 fragments whose boxes all meet (a long sequence in one room): 19,900 pairs, of which each keeps its 4 nearest."""
+    centres = list(np.random.default_rng(0).uniform(0, 5, (200, 3)))
+    every = [(i, j) for i in range(200) for j in range(i + 2, 200)]
+    kept = nearest_pairs(centres, every, 4)
+    assert len(kept) <= 4 * 200 < len(every) // 20
+    for i in (0, 57, 199):
+        distance = {j: np.linalg.norm(centres[i] - centres[j]) for j in range(200) if abs(i - j) > 1}
+        nearest = sorted(distance, key=distance.get)[:4]
+        assert all(tuple(sorted((i, j))) in kept for j in nearest)
+    assert nearest_pairs(centres, every, None) == every
 
 
 def test_fragments_split_as_open3d_and_a_short_tail_joins_the_last():
