@@ -24,8 +24,9 @@ The pipeline (:func:`reconstruct_rgbd`)
     1. frame-to-frame odometry, generalized ICP on thinned depth clouds
        (:func:`pointfield.registration.odometry.rgbd_odometry`);
     2. on a sequence of more than twice ``fragment_size`` frames (default 100, open3d's), fragments
-       of that many frames registered pairwise -- consecutive ones and, with ``loop_closure``, any
-       two whose boxes meet -- and a pose graph over them that prunes the loop closures it
+       of that many frames, each first through a pose graph of its own (its keyframes registered
+       onto each other), registered pairwise -- consecutive ones and, with ``loop_closure``, those
+       whose boxes meet (each fragment's 8 nearest) -- and a pose graph over them that prunes the loop closures it
        disagrees with (:func:`pointfield.registration.fragments.fragment_poses`): the drift of a
        camera that comes back to where it was is taken out;
     3. TSDF fusion of every frame at its pose (:class:`pointfield.geometry.tsdf.TSDFVolume`,
