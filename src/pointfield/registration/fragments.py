@@ -323,5 +323,6 @@ def _information_at(source: np.ndarray, target: np.ndarray, transformation: np.n
     return information_matrix(target, pairs) + np.eye(6) * 1e-6
 
 
-__all__ = ["DEFAULT_FRAGMENT_SIZE", "FragmentPair", "FragmentPoses", "fragment_cloud", "fragment_poses",
+__all__ = ["DEFAULT_FRAGMENT_SIZE", "FragmentPair", "FragmentPoses", "KEYFRAME_INTERVAL", "MAX_KEYFRAME_PARTNERS",
+           "MAX_LOOP_PARTNERS", "fragment_cloud", "fragment_pose_graph", "fragment_poses", "nearest_pairs",
            "split_fragments"]

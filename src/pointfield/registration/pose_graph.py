@@ -286,4 +286,4 @@ def optimize_pose_graph(graph: PoseGraph, max_correspondence_distance: float = 1
     return PoseGraphOptimization(poses, weights, pruned, graph_cost(poses, edges, weights, mu), rounds)
 
 
-__all__ = ["PoseGraph", "PoseGraphEdge", "PoseGraphOptimization", "edge_residuals", "optimize_pose_graph"]
+__all__ = ["GRADUATION", "PoseGraph", "PoseGraphEdge", "PoseGraphOptimization", "edge_residuals", "optimize_pose_graph"]
