@@ -34,15 +34,18 @@ where ``r^T Lambda r = mu``: where the poses put an edge's correspondences about
 distances, measured *after* the optimisation.
 
 How the alternation starts decides which loops survive: the cost is not convex in ``P``, and
-weights measured on the odometry chain would prune every loop whose drift exceeds that tolerance
--- exactly the loops worth closing. So the weights are graduated (graduated non-convexity, Yang,
-Antonante, Tzoumas, Carlone, RA-L 2020; ``l`` is Black and Rangarajan's line process of the
-Geman-McClure kernel, whose scale is ``mu``): the first weights are computed with ``mu`` scaled
-up to ``2 max r^T Lambda r / mu`` times itself, so that every loop starts at ``l`` near 1 (open3d's
-start), and the scale shrinks by 1.4 a round down to ``mu``. A true loop that drifted is followed
-while the scale is large, and the chain shares its drift out, so its residual falls; a false loop
-contradicts the chain (and the true loops) by more than the chain can bend, keeps a large residual
-as the scale shrinks, and is pruned.
+each start ends in a local minimum. So the alternation runs from two starts and keeps the one of
+lower ``F``. One is open3d's scheme as the weights first measured on the odometry chain have it:
+a false loop closure is weighed down before it can pull the chain -- but so is a true loop whose
+drift exceeds the tolerance on the chain, exactly the loops worth closing. The other is graduated
+(graduated non-convexity, Yang, Antonante, Tzoumas, Carlone, RA-L 2020; ``l`` is Black and
+Rangarajan's line process of the Geman-McClure kernel, whose scale is ``mu``): the first weights
+are computed with ``mu`` scaled up to ``2 max r^T Lambda r / mu`` times itself, so that every loop
+starts at ``l`` near 1 (open3d's start), and the scale shrinks by 1.4 a round down to ``mu``. A
+true loop that drifted is followed while the scale is large, the chain shares its drift out, and
+its residual falls: closing it costs less than pruning it (``mu``), and that start wins. A false
+loop the chain can bend to within the tolerance may be followed there too, but the bent chain then
+costs more than the pruned loop, and the first start wins.
 """
 
 from __future__ import annotations
@@ -267,23 +270,32 @@ def optimize_pose_graph(graph: PoseGraph, max_correspondence_distance: float = 1
         raise PointfieldError(f"max_correspondence_distance must be positive, got {max_correspondence_distance}")
     mu = preference_loop_closure * max_correspondence_distance**2 * float(np.mean([e.information[5, 5] for e in edges]))
     uncertain = np.array([e.uncertain for e in edges])
-    # Graduated non-convexity (module docstring): the kernel's scale starts where every loop weighs about 1.
+    # Two starts, one objective (module docstring): the weights measured on the chain, and graduated from 1.
     squared = _squared_residuals(poses, edges)
-    scale = max(1.0, 2.0 * float(np.max(squared[uncertain], initial=0.0)) / mu)
-    weights = line_process(poses, edges, mu * scale, edge_prune_threshold)
+    found = [_alternate(poses, edges, mu, scale, reference, edge_prune_threshold, max_rounds, tolerance)
+             for scale in (1.0, max(1.0, 2.0 * float(np.max(squared[uncertain], initial=0.0)) / mu))]
+    poses, weights, rounds = min(found, key=lambda f: graph_cost(f[0], edges, f[1], mu))  # the chain's on a tie
+    pruned = [k for k, e in enumerate(edges) if e.uncertain and weights[k] == 0.0]
+    return PoseGraphOptimization(poses, weights, pruned, graph_cost(poses, edges, weights, mu), rounds)
+
+
+def _alternate(poses: np.ndarray, edges: list[PoseGraphEdge], mu: float, scale: float, reference: int, prune: float,
+               max_rounds: int, tolerance: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(poses, weights, rounds)``: poses and line process alternated from ``poses``, the kernel's scale
+    ``mu x scale`` shrinking by :data:`GRADUATION` a round to ``mu``; then the pruned loops left out and solved
+    once more (open3d's second pass)."""
+    weights = line_process(poses, edges, mu * scale, prune)
     rounds, settled = 0, False
     while rounds < max_rounds and not settled:
         rounds += 1
         # While the scale is graduated the weights move on anyway: each solve need not be tight.
         poses = _solve(poses, edges, weights, reference, tolerance if scale == 1.0 else max(tolerance, 1e-6))
         scale = max(1.0, scale / GRADUATION)
-        updated = line_process(poses, edges, mu * scale, edge_prune_threshold)
+        updated = line_process(poses, edges, mu * scale, prune)
         settled = scale == 1.0 and bool(np.max(np.abs(updated - weights)) < 1e-4)
         weights = updated
-    pruned = [k for k, e in enumerate(edges) if e.uncertain and weights[k] == 0.0]
-    if pruned:  # open3d's second pass: the graph without the pruned loop closures, solved once more
+    if np.any(weights == 0.0):
         poses = _solve(poses, edges, weights, reference, tolerance)
-    return PoseGraphOptimization(poses, weights, pruned, graph_cost(poses, edges, weights, mu), rounds)
-
+    return poses, weights, rounds
 
 __all__ = ["GRADUATION", "PoseGraph", "PoseGraphEdge", "PoseGraphOptimization", "edge_residuals", "optimize_pose_graph"]
