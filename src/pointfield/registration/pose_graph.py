@@ -35,7 +35,8 @@ distances, measured *after* the optimisation.
 
 How the alternation starts decides which loops survive: the cost is not convex in ``P``, and
 each start ends in a local minimum. So the alternation runs from two starts and keeps the one of
-lower ``F``. One is open3d's scheme as the weights first measured on the odometry chain have it:
+lower ``F`` (the second only where the first pruned a loop, which it might close instead). One
+is open3d's scheme as the weights first measured on the odometry chain have it:
 a false loop closure is weighed down before it can pull the chain -- but so is a true loop whose
 drift exceeds the tolerance on the chain, exactly the loops worth closing. The other is graduated
 (graduated non-convexity, Yang, Antonante, Tzoumas, Carlone, RA-L 2020; ``l`` is Black and
@@ -271,9 +272,12 @@ def optimize_pose_graph(graph: PoseGraph, max_correspondence_distance: float = 1
     mu = preference_loop_closure * max_correspondence_distance**2 * float(np.mean([e.information[5, 5] for e in edges]))
     uncertain = np.array([e.uncertain for e in edges])
     # Two starts, one objective (module docstring): the weights measured on the chain, and graduated from 1.
+    # The graduated start can only differ where the first pruned a loop (one it might close instead).
     squared = _squared_residuals(poses, edges)
-    found = [_alternate(poses, edges, mu, scale, reference, edge_prune_threshold, max_rounds, tolerance)
-             for scale in (1.0, max(1.0, 2.0 * float(np.max(squared[uncertain], initial=0.0)) / mu))]
+    found = [_alternate(poses, edges, mu, 1.0, reference, edge_prune_threshold, max_rounds, tolerance)]
+    graduated = max(1.0, 2.0 * float(np.max(squared[uncertain], initial=0.0)) / mu)
+    if graduated > 1.0 and np.any(found[0][1][uncertain] == 0.0):
+        found.append(_alternate(poses, edges, mu, graduated, reference, edge_prune_threshold, max_rounds, tolerance))
     poses, weights, rounds = min(found, key=lambda f: graph_cost(f[0], edges, f[1], mu))  # the chain's on a tie
     pruned = [k for k, e in enumerate(edges) if e.uncertain and weights[k] == 0.0]
     return PoseGraphOptimization(poses, weights, pruned, graph_cost(poses, edges, weights, mu), rounds)
