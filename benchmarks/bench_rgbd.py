@@ -17,13 +17,19 @@ installed here: bench_tsdf) and its marching cubes, the mesh written as PLY. poi
 scene folder. Each is run ``--repeats`` times, interleaved.
 
 Fragments and loop closures (``--fragment-size``, ``--loop-closure``) are measured on poses alone
-(no fusion), on two sequences: the 60 frames as they are, and the 60 frames played forward then
+(no fusion), on three sequences: the 60 frames as they are; the 60 frames played forward then
 backward (``0 .. 59, 58 .. 0``, 119 frames), a camera that returns exactly to its first view, so
-that the end-to-start distance of a trajectory is its drift. Each is posed three ways --
-odometry alone, fragments of 20 frames without loop closures, and with them -- and the peers on
-the same frames are open3d's frame-to-frame hybrid odometry, and open3d's own pose-graph
-optimisation (``global_optimization``, Levenberg-Marquardt, the same options) over pointfield's
-fragment edges.
+that the end-to-start distance of a trajectory is its drift; and that sequence's odometry bent by
+a steady drift (each step turned 0.05 degree and slid 0.5 mm more: a biased sensor, the same
+clouds). Each is posed by odometry alone, by fragments of 20 frames that keep the odometry within
+them (as before fragments had pose graphs of their own) with loop closures, and by fragments with
+their own pose graphs without and with loop closures; the peers on the same frames are open3d's
+frame-to-frame hybrid odometry, and open3d's own pose-graph optimisation
+(``global_optimization``, Levenberg-Marquardt, the same options) over pointfield's fragment
+edges. Last, the fragment stage's cost on 1,000 frames (the 60 frames' odometry played forward
+and back, every fragment's box meeting every other's): loop candidates are capped at each
+fragment's 8 nearest, and the cost of registering all of them is estimated from the measured
+cost of one.
 """
 
 from __future__ import annotations
@@ -141,8 +147,9 @@ def open3d_odometry(frames, order: list[int]) -> np.ndarray:
     return np.stack(poses)
 
 
-def open3d_pose_graph(odometry: np.ndarray, fragments, voxel: float) -> np.ndarray:
-    """Frame poses from open3d's ``global_optimization`` over the same fragment graph pointfield optimised."""
+def open3d_pose_graph(fragments, voxel: float) -> np.ndarray:
+    """Frame poses from open3d's ``global_optimization`` over the same fragment graph pointfield optimised (each
+    frame kept where pointfield's own graph of its fragment put it)."""
     import open3d as o3d
 
     reg = o3d.pipelines.registration
@@ -157,16 +164,35 @@ def open3d_pose_graph(odometry: np.ndarray, fragments, voxel: float) -> np.ndarr
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         reg.global_optimization(graph, reg.GlobalOptimizationLevenbergMarquardt(),
                                 reg.GlobalOptimizationConvergenceCriteria(), option)
-    refined = np.empty_like(odometry)
+    refined = np.empty_like(fragments.poses)
     for k, (first, stop) in enumerate(fragments.fragments):
-        refined[first:stop] = np.asarray(graph.nodes[k].pose) @ np.linalg.inv(fragments.initial_fragment_poses[k]) \
-            @ odometry[first:stop]
+        # pointfield's frames are P_k P0_k^-1 within_f: the same within-fragment poses, under open3d's P_k
+        refined[first:stop] = np.asarray(graph.nodes[k].pose) @ np.linalg.inv(fragments.fragment_poses[k]) \
+            @ fragments.poses[first:stop]
     return refined
 
 
-def fragment_modes(reference: np.ndarray, fragment_size: int = 20, voxel: float = 0.02) -> tuple[list, dict]:
-    """Rows (and figures) of odometry alone, fragments, fragments + loop closures and the open3d peers, on
-    the 60 frames and on them played forward then backward."""
+def drifted(poses: np.ndarray, degrees: float) -> np.ndarray:
+    """``poses`` with every step turned ``degrees`` more about the camera's y axis and slid ``degrees`` cm along x and z:
+    an odometry that drifts steadily (a biased sensor), on the same frames."""
+    from scipy.spatial.transform import Rotation
+
+    bias = np.eye(4)
+    bias[:3, :3], bias[:3, 3] = Rotation.from_euler("y", degrees, degrees=True).as_matrix(), [degrees / 100, 0, degrees / 100]
+    out = [np.eye(4)]
+    for before, after in zip(poses[:-1], poses[1:]):
+        out.append(out[-1] @ np.linalg.inv(before) @ after @ bias)
+    return np.stack(out)
+
+
+DRIFT_DEGREES = 0.05
+"""The drift injected into the forward-and-backward odometry, per frame (119 frames: 6 degrees, 7.8 cm at the end)."""
+
+
+def fragment_modes(reference: np.ndarray, fragment_size: int = 20, voxel: float = 0.02) -> tuple[list, dict, object]:
+    """Rows (and figures) of odometry alone, fragments (odometry or their own pose graph within), with loop closures,
+    and the open3d peers, on the 60 frames, on them played forward then backward, and on that with a drift
+    injected into the odometry; and the 60 frames' odometry, for :func:`long_sequence`."""
     from pointfield.registration.fragments import fragment_poses
     from pointfield.registration.odometry import rgbd_odometry
     from pointfield.scenes.rgbd import read_depth, read_intrinsics
@@ -174,36 +200,81 @@ def fragment_modes(reference: np.ndarray, fragment_size: int = 20, voxel: float 
     frames = read_rgbd_folder(ROOM)
     camera = read_intrinsics(ROOM / "camera_primesense.json")
     depths = [read_depth(p, camera, 1000.0, DEPTH_MAX) for p in frames.depth]
-    rows, figures = [], {}
+    rows, figures, first = [], {}, None
     count = len(depths)
-    for sequence, order in (("60 frames", list(range(count))),
-                            ("forward + backward", list(range(count)) + list(range(count - 2, -1, -1)))):
+    back = list(range(count)) + list(range(count - 2, -1, -1))
+    injected = f"forward + backward, {DRIFT_DEGREES} deg a frame injected"
+    for sequence, order in (("60 frames", list(range(count))), ("forward + backward", back), (injected, back)):
         truth = reference[order]
-        started = time.perf_counter()
-        odometry = rgbd_odometry([depths[i] for i in order], camera, voxel=voxel)
-        seconds = time.perf_counter() - started
-        results = [("pointfield odometry alone", odometry.poses, seconds, "-", "-")]
-        for loops in (False, True):
+        if sequence != injected:
             started = time.perf_counter()
-            found = fragment_poses(odometry.poses, odometry.points, fragment_size, voxel=voxel, loop_closure=loops)
+            odometry = rgbd_odometry([depths[i] for i in order], camera, voxel=voxel)
+            seconds = time.perf_counter() - started
+            first = first or odometry
+            poses = odometry.poses
+        else:  # the same clouds, the odometry bent
+            poses, seconds = drifted(odometry.poses, DRIFT_DEGREES), 0.0
+        results = [("pointfield odometry alone" + (" (drift injected)" if sequence == injected else ""), poses,
+                    seconds, "-", "-")]
+        for within, loops in ((None, True), (5, False), (5, True)):
+            started = time.perf_counter()
+            found = fragment_poses(poses, odometry.points, fragment_size, voxel=voxel, loop_closure=loops,
+                                   keyframe_interval=within)
             seconds = time.perf_counter() - started
             edges = f"{found.loops_kept} / {found.loops_pruned}" if loops else "not tried"
-            name = "pointfield fragments" + (" + loop closures" if loops else "")
+            name = ("pointfield fragments, odometry within" if within is None else "pointfield fragments, own graphs") \
+                + (" + loop closures" if loops else "")
             results.append((name, found.poses, seconds, len(found.fragments), edges))
         started = time.perf_counter()
-        peer_graph = open3d_pose_graph(odometry.poses, found, voxel)
+        peer_graph = open3d_pose_graph(found, voxel)
         results.append(("open3d global_optimization, same edges", peer_graph, time.perf_counter() - started,
                         len(found.fragments), "(pointfield's)"))
-        started = time.perf_counter()
-        peer = open3d_odometry(frames, order)
-        results.append(("open3d hybrid odometry alone", peer, time.perf_counter() - started, "-", "-"))
-        for name, poses, seconds, fragments, edges in results:
-            ate = absolute_trajectory_error(poses, truth)
-            distance, angle = end_to_start(poses)
+        if sequence != injected:
+            started = time.perf_counter()
+            peer = open3d_odometry(frames, order)
+            results.append(("open3d hybrid odometry alone", peer, time.perf_counter() - started, "-", "-"))
+        for name, poses_found, seconds, fragments, edges in results:
+            ate = absolute_trajectory_error(poses_found, truth)
+            distance, angle = end_to_start(poses_found)
             drift = f"{100 * distance:.3f} cm, {angle:.3f} deg" if sequence != "60 frames" else "-"
             rows.append([sequence, name, fragments, edges, f"{seconds:.1f}", f"{100 * ate:.3f}", drift])
             figures[f"{sequence}: {name}"] = {"ate_m": ate, "end_to_start_m": distance, "end_to_start_deg": angle,
                                               "seconds": seconds}
+    return rows, figures, first
+
+
+LONG_FRAMES = 1000
+
+
+def long_sequence(odometry, voxel: float = 0.02) -> tuple[list, dict]:
+    """The fragment stage's cost on a 1,000-frame sequence: the 60 frames' odometry played forward, backward,
+    forward ... (poses and thinned clouds reused, no new odometry), so that every fragment's box meets every
+    other's -- a long sequence in one room, where loop candidates grow as n^2. Fragments of 100 frames
+    (the default) and of 20; with 20, loop closures off and on, so that their difference over the pairs
+    tried is the seconds a loop candidate costs, and the pairs whose boxes meet, at that price, what
+    registering all of them (no cap) would cost."""
+    from pointfield.registration.fragments import fragment_poses
+
+    period = list(range(len(odometry.poses))) + list(range(len(odometry.poses) - 2, 0, -1))
+    order = (period * (LONG_FRAMES // len(period) + 1))[:LONG_FRAMES]
+    poses, points = odometry.poses[order], [odometry.points[i] for i in order]
+    rows, figures = [], {}
+    for size, loops in ((100, True), (20, False), (20, True)):
+        started = time.perf_counter()
+        found = fragment_poses(poses, points, size, voxel=voxel, loop_closure=loops)
+        seconds = time.perf_counter() - started
+        meeting = int(next((n.split(" pairs whose")[0].split(": ")[-1] for n in found.notes if "pairs whose" in n), 0))
+        key = f"fragments of {size}" + (" + loop closures" if loops else "")
+        figures[key] = {"seconds": seconds, "fragments": len(found.fragments), "pairs_meeting": meeting,
+                        "pairs_tried": found.loop_candidates, "loops_kept": found.loops_kept,
+                        "loops_pruned": found.loops_pruned, "keyframe_pairs": list(found.keyframe_pairs)}
+        rows.append([LONG_FRAMES, size, len(found.fragments), f"{found.keyframe_pairs[0]}",
+                     f"{meeting} / {found.loop_candidates}" if loops else "not tried",
+                     f"{found.loops_kept} / {found.loops_pruned}" if loops else "-", f"{seconds:.1f}"])
+    on, off = figures["fragments of 20 + loop closures"], figures["fragments of 20"]
+    per_pair = (on["seconds"] - off["seconds"]) / max(on["pairs_tried"], 1)
+    figures["seconds_per_loop_candidate"] = per_pair
+    figures["uncapped_estimate_seconds"] = off["seconds"] + per_pair * on["pairs_meeting"]
     return rows, figures
 
 
@@ -264,22 +335,39 @@ def main() -> int:
     record.table(["frame-to-frame odometry", "seconds (reading included for pointfield's default)",
                   "ATE vs open3d's reconstruction (cm)"], odometry_rows,
                  title="Which odometry: the same 60 frames, each pair from the last motion")
-    fragment_rows, record.figures["fragments"] = fragment_modes(reference)
+    fragment_rows, record.figures["fragments"], odometry60 = fragment_modes(reference)
     record.table(["sequence", "poses by", "fragments", "loop closures kept / pruned",
                   "seconds (odometry or the fragment stage)", "ATE vs open3d's reconstruction (cm)",
                   "end to start (the drift)"],
-                 fragment_rows, title="Fragments of 20 frames and loop closures (poses only, voxel 2 cm; the "
-                 "second sequence returns to its first view)")
+                 fragment_rows, title="Fragments of 20 frames, their own pose graphs and loop closures (poses only, "
+                 "voxel 2 cm; the second and third sequences return to their first view)")
+    long_rows, record.figures["long_sequence"] = long_sequence(odometry60)
+    record.table(["frames", "fragment size", "fragments", "keyframe pairs linked", "loop pairs meeting / tried",
+                  "loop closures kept / pruned", "seconds (fragment stage)"], long_rows,
+                 title=f"The fragment stage on {LONG_FRAMES} frames (the 60 played forward and back; every box meets "
+                 "every other)")
+    cost = record.figures["long_sequence"]
+    record.note(f"{LONG_FRAMES} frames in fragments of 20: a loop candidate costs "
+                f"{cost['seconds_per_loop_candidate']:.2f} s; registering every pair whose boxes meet "
+                f"({cost['fragments of 20 + loop closures']['pairs_meeting']}) would take about "
+                f"{cost['uncapped_estimate_seconds']:.0f} s against "
+                f"{cost['fragments of 20 + loop closures']['seconds']:.0f} s with each fragment's 8 nearest "
+                "(an estimate: the uncapped run is not made).")
     loop = record.figures["fragments"]
-    record.verdict("fragments keep the 60 frames within 0.1 cm ATE of the odometry alone",
-                   loop["60 frames: pointfield fragments + loop closures"]["ate_m"]
-                   <= loop["60 frames: pointfield odometry alone"]["ate_m"] + 0.001,
-                   f"{100 * loop['60 frames: pointfield fragments + loop closures']['ate_m']:.3f} cm against "
-                   f"{100 * loop['60 frames: pointfield odometry alone']['ate_m']:.3f} cm")
-    closed = loop["forward + backward: pointfield fragments + loop closures"]["end_to_start_m"]
-    drifted = loop["forward + backward: pointfield odometry alone"]["end_to_start_m"]
+    ours60 = loop["60 frames: pointfield fragments, own graphs + loop closures"]["ate_m"]
+    odometry_only = loop["60 frames: pointfield odometry alone"]["ate_m"]
+    record.verdict("fragments keep the 60 frames within 0.1 cm ATE of the odometry alone", ours60 <= odometry_only + 0.001,
+                   f"{100 * ours60:.3f} cm against {100 * odometry_only:.3f} cm")
+    closed = loop["forward + backward: pointfield fragments, own graphs + loop closures"]["end_to_start_m"]
+    drifted_odometry = loop["forward + backward: pointfield odometry alone"]["end_to_start_m"]
     record.verdict("loop closures bring the camera that returns nearer its start than the odometry alone",
-                   closed < drifted, f"{100 * closed:.3f} cm against {100 * drifted:.3f} cm")
+                   closed < drifted_odometry, f"{100 * closed:.3f} cm against {100 * drifted_odometry:.3f} cm")
+    injected = f"forward + backward, {DRIFT_DEGREES} deg a frame injected"
+    within = loop[f"{injected}: pointfield fragments, own graphs + loop closures"]["end_to_start_m"]
+    without = loop[f"{injected}: pointfield fragments, odometry within + loop closures"]["end_to_start_m"]
+    record.verdict("with a drift injected, fragments' own pose graphs bring the camera nearer its start than "
+                   "fragments that keep the odometry within", within < without,
+                   f"{100 * within:.3f} cm against {100 * without:.3f} cm")
     record.verdict("the trajectory is within 2 cm ATE of open3d's reconstruction",
                    errors["pointfield scene from-rgbd"] < 0.02, f"{100 * errors['pointfield scene from-rgbd']:.2f} cm")
     record.verdict("pointfield takes less time than open3d's odometry and fusion of the same frames", ours < peer,

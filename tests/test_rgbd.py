@@ -13,8 +13,9 @@ from scipy.spatial.transform import Rotation
 
 from pointfield.cli import main
 from pointfield.geometry.tsdf import TSDFVolume, allocation_stride
-from pointfield.registration.fragments import fragment_poses, split_fragments
-from pointfield.registration.odometry import Intrinsics, absolute_trajectory_error, rgbd_odometry
+from pointfield.registration.fragments import fragment_pose_graph, fragment_poses, nearest_pairs, split_fragments
+from pointfield.registration.odometry import Intrinsics, absolute_trajectory_error, backproject, rgbd_odometry
+from pointfield.registration.scan import Scan
 from pointfield.scenes import read_scene
 from pointfield.scenes.cameras import Cameras
 from pointfield.scenes.rgbd import (
@@ -193,6 +194,38 @@ def test_loop_closure_removes_the_drift_of_a_camera_that_comes_back(tmp_path):
     assert end_to_start(closed.poses) < 0.5 * min(end_to_start(odometry.poses), end_to_start(chained.poses))
     # and the loop is closed without bending the rest: the whole path is nearer the truth than the odometry's
     assert absolute_trajectory_error(closed.poses, truth) < absolute_trajectory_error(odometry.poses, truth)
+
+
+def test_a_fragments_own_pose_graph_closes_its_keyframe_loop_and_prunes_a_slid_registration():
+    """20 frames round the circle, odometry biased 0.3 degree and 3 mm a frame (5.6 cm off at the end); keyframes
+    every 5 frames register onto each other, one pair (10-15) slides 13 cm along a wall: open3d's make_fragments."""
+    truth = loop_poses(20)
+    points = [Scan(backproject(render_depth(p), CAMERA)).downsample(0.08).points for p in truth]
+    bias = np.eye(4)
+    bias[:3, :3], bias[:3, 3] = Rotation.from_euler("y", 0.3, degrees=True).as_matrix(), [0.003, 0.0, 0.003]
+    drifted = [np.eye(4)]
+    for before, after in zip(truth[:-1], truth[1:]):
+        drifted.append(drifted[-1] @ np.linalg.inv(before) @ after @ bias)
+    drifted = np.stack(drifted)
+    poses, linked, kept, pruned = fragment_pose_graph(drifted, points, 0, len(truth), 0.08)
+    assert end_to_start(drifted) > 0.05  # the test means something: the odometry is 5 cm off when it comes back
+    assert linked == 9 and pruned == 1 and kept == 8
+    assert end_to_start(poses) < end_to_start(drifted) / 10
+    assert absolute_trajectory_error(poses, truth) < 0.8 * absolute_trajectory_error(drifted, truth)
+    np.testing.assert_allclose(poses[0], drifted[0])  # the fragment's first camera stays where it was
+
+
+def test_loop_candidates_grow_as_n_times_the_cap_and_keep_each_fragments_nearest():
+    """200 fragments whose boxes all meet (a long sequence in one room): 19,900 pairs, of which each keeps its 4 nearest."""
+    centres = list(np.random.default_rng(0).uniform(0, 5, (200, 3)))
+    every = [(i, j) for i in range(200) for j in range(i + 2, 200)]
+    kept = nearest_pairs(centres, every, 4)
+    assert len(kept) <= 4 * 200 < len(every) // 20
+    for i in (0, 57, 199):
+        distance = {j: np.linalg.norm(centres[i] - centres[j]) for j in range(200) if abs(i - j) > 1}
+        nearest = sorted(distance, key=distance.get)[:4]
+        assert all(tuple(sorted((i, j))) in kept for j in nearest)
+    assert nearest_pairs(centres, every, None) == every
 
 
 def test_fragments_split_as_open3d_and_a_short_tail_joins_the_last():

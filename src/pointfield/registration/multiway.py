@@ -22,10 +22,10 @@
 4. **Optimisation.** :func:`~pointfield.registration.pose_graph.optimize_pose_graph` with the
    inlier distance ``d`` and ``preference_loop_closure`` 5 (open3d's reconstruction system's for
    loop closures between fragments): a loop closure whose correspondences the poses put more
-   than ``sqrt(5) d`` apart (RMS) is pruned, and named in the notes. The weights are measured
-   from the odometry chain first, so a true loop closure survives a drift of up to that much,
-   and a false one (from scans that only look alike) is weighed down before it can pull the
-   chain.
+   than ``sqrt(5) d`` apart (RMS) once the poses are optimised is pruned, and named in the notes.
+   The line process runs from two starts, its weights measured on the chain and graduated from
+   full weight, and the lower cost wins, so a true loop closure is closed however far the chain
+   drifted from it, and a false one (from scans that only look alike) is pruned.
 
 Coordinates are shifted by the reference scan's centroid (rounded) while registering, so that
 survey-sized coordinates (UTM) neither lose float precision nor make the information matrices,

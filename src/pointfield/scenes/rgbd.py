@@ -24,8 +24,9 @@ The pipeline (:func:`reconstruct_rgbd`)
     1. frame-to-frame odometry, generalized ICP on thinned depth clouds
        (:func:`pointfield.registration.odometry.rgbd_odometry`);
     2. on a sequence of more than twice ``fragment_size`` frames (default 100, open3d's), fragments
-       of that many frames registered pairwise -- consecutive ones and, with ``loop_closure``, any
-       two whose boxes meet -- and a pose graph over them that prunes the loop closures it
+       of that many frames, each first through a pose graph of its own (its keyframes registered
+       onto each other), registered pairwise -- consecutive ones and, with ``loop_closure``, those
+       whose boxes meet (each fragment's 8 nearest) -- and a pose graph over them that prunes the loop closures it
        disagrees with (:func:`pointfield.registration.fragments.fragment_poses`): the drift of a
        camera that comes back to where it was is taken out;
     3. TSDF fusion of every frame at its pose (:class:`pointfield.geometry.tsdf.TSDFVolume`,
@@ -276,8 +277,9 @@ class RGBDReconstruction:
         f, r = self.report.get("fragments", {}), self.report
         if not f.get("used"):
             return f"  fragments: none ({f['why']})" if f else ""
-        line = (f"  fragments: {f['count']} of {f['size']} frames, pose graph over them, "
-                f"{r['seconds'].get('fragments', 0.0):.1f} s; ")
+        within = f.get("keyframe_pairs", [0, 0, 0])
+        line = (f"  fragments: {f['count']} of {f['size']} frames, each with its own pose graph ({within[0]} keyframe "
+                f"pairs, {within[2]} pruned), pose graph over them, {r['seconds'].get('fragments', 0.0):.1f} s; ")
         if not f["loop_closure"]:
             return line + "loop closures not tried (--no-loop-closure)"
         return line + (f"loop closures: {f['loop_candidates']} pairs tried, {f['loops_registered']} registered, "
@@ -418,6 +420,7 @@ def _fragment_report(fragments: FragmentPoses | None, size: int, loop_closure: b
         return {"used": False, "size": size, "why": why}
     return {"used": True, "size": size, "count": len(fragments.fragments), "ranges": fragments.fragments,
             "loop_closure": loop_closure, "loop_candidates": fragments.loop_candidates,
+            "keyframe_pairs": list(fragments.keyframe_pairs),
             "loops_registered": sum(p.kind == "loop closure" for p in fragments.pairs),
             "loops_kept": fragments.loops_kept, "loops_pruned": fragments.loops_pruned,
             "edges": [{"source": p.source, "target": p.target, "kind": p.kind, "how": p.how,
