@@ -19,7 +19,8 @@ density mesh's (same run); its held-out PSNR is within 1.5 dB of ngp's. ``--scen
 on NeRF-synthetic lego at 100 x 100 (no analytic truth there: PSNR and watertightness only).
 
 Run: ``make bench-sdf-field`` (= ``python benchmarks/bench_sdf_field.py``); the record goes to
-``benchmarks/records/sdf_field.json`` and pictures of the meshes to ``--out``.
+``benchmarks/records/sdf_field.json`` (``sdf_field_<scene>.json`` for another ``--scene``, so that
+the cube's record is kept) and pictures of the meshes to ``--out``.
 """
 
 from __future__ import annotations
@@ -69,7 +70,7 @@ def main() -> int:
         data = make_scene(args.scene, args.out / f"{args.scene}-data", views=args.views, size=args.size, overwrite=True)
         common, what = {}, f"`scene make {args.scene}` ({args.views} views of {args.size} x {args.size})"
     record = Record(
-        "sdf_field", "The neural SDF field against the hash-grid radiance field: PSNR, meshes, watertightness",
+        "sdf_field" if args.scene == "cube" else f"sdf_field_{args.scene.replace('-', '_')}", "The neural SDF field against the hash-grid radiance field: PSNR, meshes, watertightness",
         issue="46",
         about=f"{what}; ngp and the neural SDF (`--model sdf`) each trained at most {args.max_time:.0f} s (training "
               f"time, evaluation excluded) in the same run, seed {args.seed}; held-out PSNR is the mean of per-view "

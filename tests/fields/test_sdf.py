@@ -141,6 +141,50 @@ def test_neus_alphas_composite_to_the_logistic_cdf_across_a_plane():
     assert float(model.alphas(f, gradient, -directions, deltas).detach().max()) == 0
 
 
+def test_a_ray_that_enters_the_box_inside_the_solid_meets_the_surface_at_the_wall():
+    # The box's outside is free space (the exported mesh is closed there), so a ray whose first
+    # section starts at negative distance crosses the surface at its start: opaque at once, as
+    # the mesh would show it. NeuS's ratio Phi_s(end) / Phi_s(start) alone makes such a section
+    # nearly transparent (both CDFs near 0), which rewarded levels pushed out past the box's walls.
+    model = NeuralSDF(**SMALL)
+    f = torch.tensor([-0.5, -0.52, -0.54])  # deep inside from the first sample on, falling along the ray
+    gradient = torch.tensor([[0.0, 0.0, 1.0]]).expand(3, 3)
+    directions = torch.tensor([[0.0, 0.0, -1.0]]).expand(3, 3)
+    deltas = torch.full((3,), 0.02)
+    first = torch.tensor([True, False, False])
+    alphas = model.alphas(f, gradient, directions, deltas, first).detach()
+    assert float(alphas[0]) > 0.99
+    assert float(model.alphas(f, gradient, directions, deltas).detach()[0]) < 0.5  # NeuS's ratio alone
+    # A first section in free space is NeuS's own.
+    outside = f + 1.0
+    assert torch.allclose(model.alphas(outside, gradient, directions, deltas, first),
+                          model.alphas(outside, gradient, directions, deltas))
+
+
+def test_the_sdf_networks_and_sharpness_learn_at_a_tenth_of_the_hash_tables_rate():
+    # Adam moves the SDF network's last bias (a global offset of f) by about its rate a step: at the
+    # table's 1e-2 the level set drifted past the cube's faces to the box's walls (measured).
+    model = NeuralSDF(**SMALL)
+    table, networks = model.parameter_groups(1e-2)
+    assert table["params"] == [model.sdf.encoding.table] and table["lr"] == 1e-2
+    assert networks["lr"] == pytest.approx(1e-3)
+    assert any(p is model.variance for p in networks["params"]) and any(p is model.sdf.last.bias for p in networks["params"])
+    assert len(networks["params"]) == len(list(model.parameters())) - 1
+
+
+def test_an_sdf_run_from_before_the_two_rates_resumes_with_its_one_rate(tmp_path):
+    options = {**CUBE, "cube_views": 4, "cube_size": 16}
+    first = train(None, out=tmp_path / "run", steps=1, **{**options, "model_options": {
+        **options["model_options"], "network_lr_fraction": 1.0}})  # one parameter group, as such a run saved
+    config_path = tmp_path / "run" / "config.json"
+    config = json.loads(config_path.read_text())
+    del config["model_options"]["network_lr_fraction"]  # the option did not exist then
+    config_path.write_text(json.dumps(config))
+    resumed = train(None, out=tmp_path / "run", steps=2, resume=True, **options)
+    assert resumed["steps"] == 2 and first["steps"] == 1
+    assert json.loads(config_path.read_text())["model_options"]["network_lr_fraction"] == 1.0
+
+
 def test_early_termination_drops_only_samples_that_cannot_change_a_pixel(monkeypatch):
     torch.manual_seed(0)
     model = NeuralSDF(initial_variance=0.5, **SMALL).eval()  # s = e^5: a sharp sphere of radius 0.75

@@ -43,11 +43,17 @@ order a ray meets them:
    (all in box units ``p``). The compositor (:func:`~pointfield.fields.rendering.composite`)
    takes densities: ``sigma_i = -ln(1 - alpha_i) / delta_i`` is the constant density over the
    section with that opacity, so weights, depth and opacity come out of the one compositor.
-   NeuS anneals ``cos`` from a half-sphere average; this uses its final form throughout.
+   NeuS anneals ``cos`` from a half-sphere average; this uses its final form throughout. A
+   ray's first section starts at ``f >= 0`` (``entry_outside``): outside the box is free space
+   (the mesh export closes the surface there), so a ray that enters where ``f < 0`` meets the
+   surface at the wall; the ratio alone is nearly 0 there, deep in the CDF's tail, where it
+   depends on differences of ``f`` only and so pins no level.
 6. **The eikonal loss** (Gropp et al. 2020), ``eikonal_weight * mean (|grad f_p| - 1)^2`` over
    the ray samples and ``eikonal_points`` uniform points of the box (which keep the SDF valid in
    the empty space no ray samples, so marching cubes finds no stray surfaces there), as the
    model's auxiliary loss; weight 0.1 as NeuS and instant-NSR use.
+7. **Learning rates** (:meth:`NeuralSDF.parameter_groups`): the hash table at the run's, the
+   MLPs and ``v`` at ``network_lr_fraction`` (a tenth) of it.
 
 The model is a :class:`~pointfield.fields.field.RadianceField` like the others: trained by
 ``nerf train --model sdf`` through the same lifecycle and training rays, rendered by
@@ -78,6 +84,8 @@ MAX_ALPHA = 1 - 1e-6
 """Alphas are capped here before ``-ln(1 - alpha)``, so that an opaque section has a finite density."""
 GRADIENTS = ("finite-difference", "autograd")
 """How :meth:`NeuralSDF.sdf_and_gradient` takes ``grad f``: four offset evaluations, or autograd (module docstring, step 3)."""
+NETWORK_LR_FRACTION = 0.1
+"""The MLPs' and the sharpness's learning rate as a fraction of the hash table's (:meth:`NeuralSDF.parameter_groups`)."""
 TETRAHEDRON = ((1.0, -1.0, -1.0), (-1.0, -1.0, 1.0), (-1.0, 1.0, -1.0), (1.0, 1.0, 1.0))
 """The offsets of :func:`tetrahedral_gradient`: a regular tetrahedron's corners, ``sum_k v_k v_k^T = 4 I``."""
 
@@ -103,6 +111,13 @@ def tetrahedral_gradient(function, p: torch.Tensor, step: float) -> tuple[torch.
     values, features = values.reshape(4, p.shape[0]), features.reshape(4, p.shape[0], features.shape[-1])
     gradient = torch.einsum("kn,kc->nc", values, offsets) / (4 * step * step)
     return values.mean(dim=0), gradient, features.mean(dim=0)
+
+
+def first_of_ray(ray_indices: torch.Tensor) -> torch.Tensor:
+    """``(N,)`` bool: the packed samples (sorted by ray) that are the first of their ray."""
+    first = torch.ones_like(ray_indices, dtype=torch.bool)
+    first[1:] = ray_indices[1:] != ray_indices[:-1]
+    return first
 
 
 class SDFNetwork(nn.Module):
@@ -180,7 +195,8 @@ class NeuralSDF(RadianceField):
     ``eikonal_weight`` and ``eikonal_points`` (uniform box points per step besides the samples).
     ``gradient``: "finite-difference" (default) or "autograd" (module docstring, step 3);
     ``finite_difference_step``: the tetrahedron's offset in box units (default half the finest
-    hash cell, ``1 / max_resolution``).
+    hash cell, ``1 / max_resolution``). ``entry_outside``: rays come into the box from free space
+    (module docstring, step 5); ``network_lr_fraction``: step 7 (1.0: one parameter group).
     """
 
     def __init__(
@@ -203,6 +219,8 @@ class NeuralSDF(RadianceField):
         eikonal_points: int = 1024,
         gradient: str = "finite-difference",
         finite_difference_step: float | None = None,
+        entry_outside: bool = True,
+        network_lr_fraction: float = NETWORK_LR_FRACTION,
     ):
         super().__init__()
         if unbounded:
@@ -214,6 +232,10 @@ class NeuralSDF(RadianceField):
         if finite_difference_step is not None and not finite_difference_step > 0:
             raise ValueError(f"finite_difference_step must be > 0 (box units), got {finite_difference_step}")
         self.gradient = gradient
+        self.entry_outside = bool(entry_outside)
+        if not network_lr_fraction > 0:
+            raise ValueError(f"network_lr_fraction must be > 0, got {network_lr_fraction}")
+        self.network_lr_fraction = float(network_lr_fraction)
         self.finite_difference_step = (1.0 / max_resolution if finite_difference_step is None
                                        else float(finite_difference_step))
         if not 0 < sphere_radius < 1:
@@ -238,6 +260,22 @@ class NeuralSDF(RadianceField):
         # Half a cell's diagonal in box units: no point of a cell is nearer the surface than its
         # sampled point's |f| minus this, where |grad f| = 1.
         self._cell_margin = 0.5 * math.sqrt(3) * 2.0 / grid_resolution
+
+    def parameter_groups(self, learning_rate: float) -> list[dict]:
+        """Adam's parameter groups: the hash table at ``learning_rate``, the MLPs and ``v`` at ``network_lr_fraction`` of it.
+
+        Adam moves every parameter by about its learning rate a step whatever its gradient, and
+        the SDF network's last bias is a global offset of ``f``: at the hash grid's 1e-2 the
+        whole level set drifts a hundredth of the box a step, past the faces to the box's walls
+        (where the rays start inside the solid and NeuS's ratio no longer pins it). instant-nsr-pl
+        and NeuS2 train their MLPs and ``v`` at a tenth of the grid's rate too.
+        """
+        if self.network_lr_fraction == 1.0:  # one group, as runs made before this option have in their checkpoints
+            return [{"params": list(self.parameters()), "lr": learning_rate}]
+        table = [self.sdf.encoding.table]
+        others = [p for p in self.parameters() if all(p is not t for t in table)]
+        return [{"params": table, "lr": learning_rate},
+                {"params": others, "lr": learning_rate * self.network_lr_fraction}]
 
     @property
     def extent(self) -> SceneExtent:
@@ -280,10 +318,17 @@ class NeuralSDF(RadianceField):
         return f, gradient, features
 
     def alphas(self, f: torch.Tensor, gradient: torch.Tensor, directions: torch.Tensor,
-               deltas: torch.Tensor) -> torch.Tensor:
-        """NeuS's section opacities ``(N,)`` (module docstring, step 5); ``f``, ``deltas`` in box units."""
+               deltas: torch.Tensor, first: torch.Tensor | None = None) -> torch.Tensor:
+        """NeuS's section opacities ``(N,)`` (module docstring, step 5); ``f``, ``deltas`` in box units.
+
+        ``first`` (N,) bool: the sections that begin a ray's march, where it comes in from the
+        free space outside the box: their start's distance is taken as at least 0.
+        """
         cos = torch.clamp((directions * gradient).sum(dim=-1), max=0.0)  # only surfaces the ray enters
-        previous_cdf = torch.sigmoid(self.sharpness * (f - cos * deltas / 2))
+        start = f - cos * deltas / 2
+        if first is not None and self.entry_outside:
+            start = torch.where(first, start.clamp(min=0.0), start)
+        previous_cdf = torch.sigmoid(self.sharpness * start)
         next_cdf = torch.sigmoid(self.sharpness * (f + cos * deltas / 2))
         # NeuS's code adds its 1e-5 to the numerator too, which deep inside the solid (both CDFs
         # near 0) makes sections the ray leaves, or runs along, up to 1e-5 / Phi opaque.
@@ -340,6 +385,8 @@ class NeuralSDF(RadianceField):
             return samples
         f = self.sdf(self.to_box_units(samples.positions(rays)))[0]
         cdf = torch.sigmoid(self.sharpness * f)
+        if self.entry_outside:
+            cdf = torch.where(first_of_ray(samples.ray_indices), cdf.clamp(min=0.5), cdf)
         same_ray = samples.ray_indices[1:] == samples.ray_indices[:-1]
         following = torch.cat([torch.where(same_ray, cdf[1:], cdf[:-1]), cdf[-1:]])
         alpha = (1 - following / (cdf + 1e-5)).clamp(0.0, MAX_ALPHA)
@@ -360,7 +407,7 @@ class NeuralSDF(RadianceField):
         samples = self.terminated(samples, rays)
         directions = samples.view_directions(rays)
         f, gradient, features = self.sdf_and_gradient(self.to_box_units(samples.positions(rays)), training)
-        alpha = self.alphas(f, gradient, directions, samples.deltas / self.scale)
+        alpha = self.alphas(f, gradient, directions, samples.deltas / self.scale, first_of_ray(samples.ray_indices))
         sigmas = -torch.log1p(-alpha.clamp(max=MAX_ALPHA)) / samples.deltas.clamp_min(1e-10)
         normals = F.normalize(gradient, dim=-1)
         view = sh_basis(directions, DIRECTION_SH_DEGREE)

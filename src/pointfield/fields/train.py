@@ -60,6 +60,7 @@ from pointfield.fields.scene_box import (
     scene_bounds,
     steps_a_pixel_allows,
 )
+from pointfield.fields.sdf import NETWORK_LR_FRACTION
 from pointfield.fields.training_rays import TrainingRays
 from pointfield.metrics import psnr_from_mse
 from pointfield.scenes.heldout import (
@@ -192,7 +193,11 @@ class NerfTask(Task):
         choose_scene_defaults(config, device, say=distributed is None or distributed.is_main)
         self.scene = open_scene_of(config)
         self.train_frames, self.heldout_frames = training_and_heldout(self.scene)
-        if config["model"] in HASH_GRID_MODELS and "box" not in config["model_options"]:  # a resume has its box
+        new_run = "box" not in config["model_options"]  # a resume has its box
+        if config["model"] == "sdf" and "network_lr_fraction" not in config["model_options"]:
+            # A run trained before the MLPs had their own rate resumes with its one rate (its optimizer's state).
+            config["model_options"]["network_lr_fraction"] = NETWORK_LR_FRACTION if new_run else 1.0
+        if config["model"] in HASH_GRID_MODELS and new_run:
             scene_box = config.get("scene_box", "auto")
             if config["model"] == "sdf" and scene_box == "auto":
                 scene_box = "bounded"  # a signed distance has no contracted form: the object's box
@@ -228,7 +233,9 @@ class NerfTask(Task):
             # Instant-NGP's Adam: beta2 0.99 and a tiny epsilon, so rarely-touched hash entries
             # still move at the full learning rate.
             # fused: one kernel over the whole table instead of a dozen passes (6x faster on a CPU).
-            self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config["learning_rate"], betas=(0.9, 0.99),
+            groups = getattr(self.model, "parameter_groups", None)
+            parameters = groups(config["learning_rate"]) if groups is not None else self.model.parameters()
+            self.optimizer = torch.optim.Adam(parameters, lr=config["learning_rate"], betas=(0.9, 0.99),
                                               eps=1e-15, fused=device.type in ("cpu", "cuda"))
         else:
             self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config["learning_rate"])
