@@ -15,12 +15,14 @@ The functions most people need first::
 import os
 from typing import Any
 
-# torch's CPU wheels run their parallel operations on GNU OpenMP, whose threads spin while they
-# wait for each other. With another program busy on a core, a training step then runs many times
-# slower than on a quiet machine; threads that sleep at once (PASSIVE) avoid that cliff
-# (benchmarks/bench_threads.py measures both). libgomp reads the variable when torch loads it, so
-# this runs before anything imports torch; a value the user set is kept.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# torch's CPU wheels run their parallel operations on GNU OpenMP, whose threads spin up to 300,000
+# times while they wait for each other. With another program busy on a core, a training step then
+# runs many times slower than on a quiet machine (42x for a splat step on 2 cores). A spin of 10,000
+# keeps the quiet machine's speed and most of the busy one's (benchmarks/bench_threads.py measures
+# each choice). libgomp reads the variables when torch loads it, so this runs before anything
+# imports torch; a waiting policy or spin count the user set is kept.
+if "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ:
+    os.environ["GOMP_SPINCOUNT"] = "10000"
 
 from pointfield.clouds import Mesh, PointCloud, Records, read, write
 from pointfield.errors import FormatError, PointfieldError
