@@ -70,7 +70,8 @@ def main() -> int:
         data = make_scene(args.scene, args.out / f"{args.scene}-data", views=args.views, size=args.size, overwrite=True)
         common, what = {}, f"`scene make {args.scene}` ({args.views} views of {args.size} x {args.size})"
     record = Record(
-        "sdf_field" if args.scene == "cube" else f"sdf_field_{args.scene.replace('-', '_')}", "The neural SDF field against the hash-grid radiance field: PSNR, meshes, watertightness",
+        "sdf_field" if args.scene == "cube" else f"sdf_field_{args.scene.replace('-', '_')}",
+        f"The neural SDF field against the hash-grid radiance field on the {args.scene}: PSNR, meshes, watertightness",
         issue="46",
         about=f"{what}; ngp and the neural SDF (`--model sdf`) each trained at most {args.max_time:.0f} s (training "
               f"time, evaluation excluded) in the same run, seed {args.seed}; held-out PSNR is the mean of per-view "
