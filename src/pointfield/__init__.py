@@ -17,7 +17,7 @@ from typing import Any
 
 # torch's CPU wheels run their parallel operations on GNU OpenMP, whose threads spin up to 300,000
 # times while they wait for each other. With another program busy on a core, a training step then
-# runs many times slower than on a quiet machine (42x for a splat step on 2 cores). A spin of 10,000
+# runs many times slower than on a quiet machine (13.5x for a splat step on 2 cores in the record). A spin of 10,000
 # keeps the quiet machine's speed and most of the busy one's (benchmarks/bench_threads.py measures
 # each choice). libgomp reads the variables when torch loads it, so this runs before anything
 # imports torch; a waiting policy or spin count the user set is kept.
