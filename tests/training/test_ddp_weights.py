@@ -26,6 +26,7 @@ import torch
 from torch.nn.modules.module import register_module_forward_hook, register_module_forward_pre_hook
 from torch.optim.optimizer import register_optimizer_step_post_hook
 import pointfield.clouds.tasks as tasks
+from pointfield.training.distributed import exit_joined
 
 out, record = sys.argv[1], sys.argv[2]
 first_batch, after_first_step, after_last_step, evaluations = [], [], [], []
@@ -57,6 +58,7 @@ tasks.train("classify", out=out, device="cpu", progress=False, checkpoint_second
 torch.save({"first_batch": first_batch[0], "after_first_step": after_first_step,
             "after_last_step": after_last_step, "evaluations": evaluations},
            record.format(rank=os.environ["RANK"]))
+exit_joined(0)  # as the command line ends: see pointfield.training.distributed.shutdown
 """
 
 

@@ -74,3 +74,9 @@ def test_two_cpu_processes_train_one_model_with_ddp(tmp_path):
     assert [r["epoch"] for r in records] == [1, 2] and [r["step"] for r in records] == [5, 10]
     assert result.stdout.count("classify run") == 1  # only rank 0 reports
     assert (out / "metrics.json").is_file() and (out / "confusion_matrix.png").is_file()
+
+
+def test_a_process_that_joined_no_group_is_not_ended_by_exit_joined():
+    from pointfield.training.distributed import exit_joined
+
+    assert exit_joined(3) == 3  # the command line's code, returned to sys.exit as usual

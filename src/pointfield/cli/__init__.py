@@ -58,7 +58,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.started = started
     with warnings.catch_warnings():
         warnings.showwarning = print_warning
-        return _run(args)
+        code = _run(args)
+    if "WORLD_SIZE" in os.environ:  # launched by torchrun
+        from pointfield.training.distributed import exit_joined
+
+        return exit_joined(code)
+    return code
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -12,6 +12,7 @@ files.
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass
 from datetime import timedelta
 
@@ -23,6 +24,7 @@ from pointfield.devices import pick_device
 from pointfield.errors import PointfieldError
 
 TIMEOUT = timedelta(minutes=30)
+_joined = False  # set by setup once this process has joined a group: see exit_joined
 
 
 @dataclass(frozen=True)
@@ -89,6 +91,8 @@ def setup(device_name: str | None = None) -> tuple[Distributed | None, torch.dev
     if not dist.is_initialized():
         backend = "nccl" if device.type == "cuda" else "gloo"
         dist.init_process_group(backend, timeout=TIMEOUT)
+    global _joined
+    _joined = True
     return Distributed(rank, world_size, local_rank), device
 
 
@@ -96,16 +100,36 @@ def shutdown() -> None:
     """Leave the process group (a no-op without one).
 
     Its gloo worker threads outlive it: DistributedDataParallel keeps the group alive in C++
-    (torch 2.13), so they run until the process exits. A worker that drops the last
-    reference to a finished all-reduce at that moment frees tensors that belong to Python
-    objects, needs the GIL while the interpreter is shutting down, and aborts the process
-    ("terminate called without an active exception"; one run in about fifteen here). So
-    :func:`~pointfield.training.lifecycle.train` ends with a barrier: gloo's barrier waits
-    for the work in flight, and the slower rank's last writes give the workers time to let
-    go before any rank exits.
+    (torch 2.13), and even with the wrapper collected, two ``pt_gloo_runloop`` threads are still
+    running after ``destroy_process_group`` (counted in ``/proc/self/task``). Left to the
+    interpreter's exit, a worker that drops the last reference to a finished all-reduce then
+    frees tensors that belong to Python objects, needs the GIL while the interpreter is shutting
+    down, and aborts the process ("terminate called without an active exception"; one run in
+    about fifteen here, and still now and then with the barrier below; a plain DDP script on
+    torch alone keeps the threads too, and torch's own fix, an atexit handler, was abandoned:
+    pytorch/pytorch#179291, #190489). So
+    :func:`~pointfield.training.lifecycle.train` ends with a barrier: gloo's barrier waits for
+    the work in flight, and the slower rank's last writes give the workers time to let go; and
+    the command line ends a process that joined a group with :func:`exit_joined`, which skips
+    that shutdown altogether.
     """
     if dist.is_available() and dist.is_initialized():
         dist.destroy_process_group()
+
+
+def exit_joined(code: int) -> int:
+    """End this process at once with ``code`` if it joined a process group; else return ``code``.
+
+    ``os._exit`` skips the interpreter's shutdown, where gloo's surviving worker threads can
+    abort the process (:func:`shutdown`). Nothing is lost by skipping it: every file a run
+    writes is written atomically and closed before training returns, and the standard streams
+    are flushed here.
+    """
+    if not _joined:
+        return code
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 def wrap(model: nn.Module, distributed: Distributed | None, device: torch.device) -> nn.Module:
