@@ -6,7 +6,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test test-guides lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos bench-predict bench-threads bench-ground clean
+.PHONY: demo test test-guides lint docs bench bench-report bench-formats bench-fuzz bench-ptx bench-pointnet bench-nerf bench-splat bench-splat-render bench-hashgrid bench-march bench-lego bench-lego-400 bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos bench-predict bench-threads bench-ground clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -56,7 +56,7 @@ $(BIN)/.colmap: $(BIN)/.installed
 
 # Each benchmark writes its record to benchmarks/records/<name>.json; bench-report turns the records
 # into benchmarks/RESULTS.md, each section headed by the command that produced it.
-bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos bench-predict bench-threads bench-ground
+bench: bench-formats bench-fuzz bench-ptx bench-fps bench-pointnet bench-hashgrid bench-march bench-splat-render bench-lego bench-lego-400 bench-nerf bench-splat bench-sfm bench-tsdf bench-geometry bench-backgrounds bench-streaming bench-viewer bench-browser-cost bench-registration bench-align bench-sdf bench-poisson bench-occupancy bench-scenes bench-splat-resolution bench-near bench-sdf-field bench-rgbd bench-photos bench-predict bench-threads bench-ground
 	$(MAKE) bench-report
 
 bench-report: $(BIN)/.installed
@@ -151,6 +151,10 @@ bench-browser-cost: $(BIN)/.chromium
 # TinyNeRF, the hash-grid field and splats on lego in one run (about 45 minutes on 2 cores).
 bench-lego: $(BIN)/.installed
 	$(BIN)/python benchmarks/bench_lego.py
+
+# The hash-grid field on lego at 400 x 400 for 300 s (issue 43; about 10 minutes on 2 cores).
+bench-lego-400: $(BIN)/.installed
+	$(BIN)/python benchmarks/bench_lego.py --size 400 --models ngp --ngp-eval-every 100 --out bench-output/lego-400
 
 # Mesh to signed distance grid against mesh2sdf and open3d on the ModelNet meshes (issue 46); finer: make bench-sdf SDF_SIZE=64
 SDF_SIZE ?= 32

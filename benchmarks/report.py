@@ -22,7 +22,7 @@ sys.path.insert(0, str(HERE))
 
 from harness import OUTPUT, format_verdict  # noqa: E402
 
-ORDER = ("formats", "fuzz", "pointnet", "hashgrid", "march", "splat-render", "lego", "nerf", "splat", "sfm", "sfm-training",
+ORDER = ("formats", "fuzz", "pointnet", "hashgrid", "march", "splat-render", "lego", "lego-400", "nerf", "splat", "sfm", "sfm-training",
          "tsdf", "geometry", "backgrounds", "splat-resolution", "registration", "scenes", "sdf", "poisson", "occupancy")
 """Sections in the order of the issues; records of other names follow, alphabetically."""
 
