@@ -260,6 +260,20 @@ def test_from_rgbd_fragments_and_loop_closure_through_the_cli(sequence, tmp_path
     assert "fragments: none (8 frames, not more than twice the fragment size 100)" in capsys.readouterr().out
 
 
+def test_keyframe_every_sets_the_keyframe_pairs_of_each_fragments_pose_graph(sequence, tmp_path, capsys):
+    folder, truth = sequence
+    argv = ["scene", "from-rgbd", str(folder), "--voxel", "0.04", "--odometry-voxel", "0.05", "--device", "cpu",
+            "--fragment-size", "3", "--no-loop-closure", "--no-progress"]
+    assert main([*argv, "--keyframe-every", "2", "--out", str(tmp_path / "every2")]) == 0
+    assert "fragments: 3 of 3 frames, each with its own pose graph (keyframes every 2 frames, 2 keyframe pairs" \
+        in capsys.readouterr().out  # frames 0 and 2 of the two fragments of 3 (open3d's 5 would give none)
+    report = json.loads((tmp_path / "every2" / "report.json").read_text())["fragments"]
+    assert report["keyframe_every"] == 2 and report["keyframe_pairs"][0] == 2
+    assert absolute_trajectory_error(read_log_trajectory(tmp_path / "every2" / "trajectory.log"), truth) < 0.01
+    assert main([*argv, "--keyframe-every", "0", "--out", str(tmp_path / "none")]) == 0
+    assert "the odometry kept within each (--keyframe-every 0)" in capsys.readouterr().out
+    _one_line_error(capsys, [*argv, "--keyframe-every", "-1", "--out", tmp_path / "o"], "--keyframe-every")
+
 def _one_line_error(capsys, argv, *fragments):
     assert main([str(a) for a in argv]) == 1
     captured = capsys.readouterr()
