@@ -358,12 +358,16 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        odometry = rgbd_odometry(depths(), camera, voxel=odometry_voxel, stride=stride)
+        in_fragments = bool(fragment_size) and len(sequence) > 2 * fragment_size
+        # The fragments' own pose graphs weigh each step by its information: measured in the odometry's k-d trees.
+        odometry = rgbd_odometry(depths(), camera, voxel=odometry_voxel, stride=stride,
+                                 information=in_fragments and keyframe_every > 0)
         odometry_done = time.perf_counter()
         poses, fragments = odometry.poses, None
-        if fragment_size and len(sequence) > 2 * fragment_size:
+        if in_fragments:
             fragments = fragment_poses(odometry.poses, odometry.points, fragment_size, voxel=odometry_voxel,
-                                       loop_closure=loop_closure, keyframe_interval=keyframe_every or None)
+                                       loop_closure=loop_closure, keyframe_interval=keyframe_every or None,
+                                       information=odometry.information or None)
             poses = fragments.poses
     fragments_done = time.perf_counter()
 
