@@ -456,10 +456,10 @@ def interpolated_depth(depth: torch.Tensor, pixels: torch.Tensor) -> torch.Tenso
     top = torch.floor(y).clamp(max=max(height - 2, 0))
     across, down = (x - left).clamp(max=1), (y - top).clamp(max=1)
     flat = depth.reshape(-1)
-    top_left = (top * width + left).long()
+    top_left = (top * width + left).int()  # index_select with int32 indices: several times faster than indexing
     step_right, step_down = int(width > 1), width * int(height > 1)
-    d00, d01 = flat[top_left], flat[top_left + step_right]
-    d10, d11 = flat[top_left + step_down], flat[top_left + step_down + step_right]
+    d00, d01 = flat.index_select(0, top_left), flat.index_select(0, top_left + step_right)
+    d10, d11 = flat.index_select(0, top_left + step_down), flat.index_select(0, top_left + step_down + step_right)
     interpolated = torch.lerp(torch.lerp(d00, d01, across), torch.lerp(d10, d11, across), down)
     lowest = torch.minimum(torch.minimum(d00, d01), torch.minimum(d10, d11))
     highest = torch.maximum(torch.maximum(d00, d01), torch.maximum(d10, d11))
