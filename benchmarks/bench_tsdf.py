@@ -17,25 +17,46 @@ successor of ``ScalableTSDFVolume``) and ``UniformTSDFVolume`` (dense). The issu
 nothing (no vertex; :func:`legacy_scalable_vertices` checks it in every run and the record keeps
 the count), while ``UniformTSDFVolume`` and ``VoxelBlockGrid`` mesh the same maps.
 
-Part of issue 14. Run: ``make bench-tsdf`` (= ``python benchmarks/bench_tsdf.py``); the record goes to
+A second table fuses real sensor frames as ``scene from-rgbd`` does: the first ``--frames`` of the
+living room (``../shared/data/rgbd/livingroom1_micro``, 640 x 480) at open3d's own poses for them
+(``open3d_trajectory.log``), 1 cm voxels, each frame updating only the blocks near its own surface,
+each voxel reading the depth of the pixel it falls in -- pointfield against open3d's VoxelBlockGrid.
+
+``--before COMMIT`` adds pointfield's fusion as it was at that commit (its ``geometry/tsdf.py``,
+read with ``git show``) to both tables, so that a change to the fusion is measured against the
+code it replaces in the same run: ``--before b0b6844`` is the per-voxel code that the block-wise
+one replaced (issue 44: ``scene from-rgbd`` on a busy machine lost to open3d in its fusion).
+
+Part of issue 14. Run: ``make bench-tsdf`` (= ``python benchmarks/bench_tsdf.py``), on one thread as
+``OMP_NUM_THREADS=1 python benchmarks/bench_tsdf.py --before b0b6844``; the record goes to
 ``benchmarks/records/tsdf.json``.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import math
+import subprocess
 import sys
+import tempfile
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from unittest import mock
 
 import numpy as np
 import torch
 
-from harness import Record, interleaved
+from harness import ROOT, Record, interleaved
 
 BOX = ([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0])
 TRUNCATION_VOXELS = 4.0
+ROOM = ROOT.parent / "shared" / "data" / "rgbd" / "livingroom1_micro"
+ROOM_VOXEL = 0.01
+"""Metres: ``scene from-rgbd``'s default voxel."""
+ROOM_DEPTH_MAX = 3.0
 
 
 def cube_views(views: int, size: int):
@@ -47,11 +68,87 @@ def cube_views(views: int, size: int):
     return scene.cameras, depths, colours
 
 
-def fuse_pointfield(cameras, depths, colours, resolution: int, device="cpu"):
-    from pointfield.geometry.tsdf import TSDFVolume, fuse
+def fuse_pointfield(cameras, depths, colours, resolution: int, device="cpu", tsdf=None):
+    """``tsdf``: the module to fuse with (default pointfield's own; :func:`tsdf_at` gives an older one)."""
+    if tsdf is None:
+        from pointfield.geometry import tsdf
 
-    volume = TSDFVolume.create(*BOX, resolution, truncation_voxels=TRUNCATION_VOXELS, device=device)
-    return fuse(volume, [(torch.from_numpy(d), torch.from_numpy(c)) for d, c in zip(depths, colours)], cameras)
+    volume = tsdf.TSDFVolume.create(*BOX, resolution, truncation_voxels=TRUNCATION_VOXELS, device=device)
+    return tsdf.fuse(volume, [(torch.from_numpy(d), torch.from_numpy(c)) for d, c in zip(depths, colours)], cameras)
+
+
+def tsdf_at(commit: str):
+    """pointfield's ``geometry/tsdf.py`` as it was at ``commit``, loaded as a module of its own."""
+    try:
+        source = subprocess.run(["git", "show", f"{commit}:src/pointfield/geometry/tsdf.py"], cwd=ROOT,
+                                capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError) as error:
+        raise SystemExit(f"--before {commit}: cannot read src/pointfield/geometry/tsdf.py at that commit ({error})") from None
+    name = f"tsdf_at_{commit}"
+    path = Path(tempfile.mkdtemp()) / f"{name}.py"
+    path.write_text(source, encoding="utf-8")
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up by name
+    spec.loader.exec_module(module)
+    return module
+
+
+def room_frames(folder: Path, count: int):
+    """The first ``count`` frames of the living room as ``scene from-rgbd`` reads them, at open3d's poses, and their box."""
+    from pointfield.scenes.cameras import Cameras
+    from pointfield.scenes.rgbd import read_colour, read_depth, read_intrinsics, read_log_trajectory, read_rgbd_folder
+
+    sequence = read_rgbd_folder(folder).subset(count)
+    camera = read_intrinsics(folder / "camera_primesense.json")
+    poses = read_log_trajectory(folder / "open3d_trajectory.log")[:count]
+    depths = [read_depth(path, camera, 1000.0, ROOM_DEPTH_MAX) for path in sequence.depth]
+    colours = [read_colour(path, camera) for path in sequence.colour]
+    rows, columns = np.nonzero(np.ones((camera.height, camera.width), bool))
+    local = np.stack([(columns + 0.5 - camera.cx) / camera.fx, (rows + 0.5 - camera.cy) / camera.fy,
+                      np.ones(len(rows))], -1)
+    world = np.concatenate([(local * d.reshape(-1, 1))[d.reshape(-1) > 0] @ pose[:3, :3].T + pose[:3, 3]
+                            for d, pose in zip(depths, poses)])
+    pad = 5 * ROOM_VOXEL
+    box = (world.min(axis=0) - pad, world.max(axis=0) + pad)
+    cameras = Cameras(torch.as_tensor(poses), camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
+    return cameras, depths, colours, box
+
+
+def fuse_room_pointfield(cameras, depths, colours, box, tsdf=None):
+    """As ``scene from-rgbd`` fuses: only the blocks near each frame's surface, the depth of the pixel a voxel falls in."""
+    if tsdf is None:
+        from pointfield.geometry import tsdf
+
+    resolution = max(2, math.ceil(float(np.max(box[1] - box[0])) / ROOM_VOXEL))
+    volume = tsdf.TSDFVolume.create(*box, resolution, truncation_voxels=TRUNCATION_VOXELS)
+    stride = tsdf.allocation_stride(volume.voxel, float(min(cameras.fx[0], cameras.fy[0])), ROOM_DEPTH_MAX)
+    for index, (depth, colour) in enumerate(zip(depths, colours)):
+        volume.integrate(torch.from_numpy(depth), torch.from_numpy(colour), cameras, index, touched_only=True,
+                         pixel_stride=stride, interpolate=False)
+    return volume
+
+
+def fuse_room_open3d(cameras, depths, colours, box):
+    """open3d's VoxelBlockGrid on the same frames and poses, as its reconstruction system fuses them."""
+    import open3d as o3d
+    import open3d.core as o3c
+
+    grid = o3d.t.geometry.VoxelBlockGrid(
+        attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+        attr_channels=((1), (1), (3)), voxel_size=ROOM_VOXEL, block_resolution=8, block_count=50_000,
+        device=o3c.Device("CPU:0"))
+    world_to_camera = cameras.world_to_camera().double().numpy()
+    intrinsic = o3c.Tensor(_intrinsics(cameras, 0))
+    for index, (depth, colour) in enumerate(zip(depths, colours)):
+        extrinsic = o3c.Tensor(world_to_camera[index])
+        depth_image = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(depth.astype(np.float32))))
+        colour_image = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(colour.astype(np.float32))))
+        blocks = grid.compute_unique_block_coordinates(depth_image, intrinsic, extrinsic, 1.0, ROOM_DEPTH_MAX,
+                                                       trunc_voxel_multiplier=TRUNCATION_VOXELS)
+        grid.integrate(blocks, depth_image, colour_image, intrinsic, intrinsic, extrinsic, 1.0, ROOM_DEPTH_MAX,
+                       trunc_voxel_multiplier=TRUNCATION_VOXELS)
+    return grid
 
 
 @contextmanager
@@ -163,7 +260,11 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--resolution", type=int, default=256, help="voxels along a side (default 256)")
     parser.add_argument("--repeats", type=int, default=2, help="timed rounds per contender (default 2)")
+    parser.add_argument("--frames", type=int, default=15, help="living-room frames fused in the second table (default 15; 0: no such table)")
+    parser.add_argument("--before", metavar="COMMIT", help="also time pointfield's fusion as it was at this commit")
     args = parser.parse_args()
+    before = tsdf_at(args.before) if args.before else None
+    earlier = f"pointfield at {args.before}"
     import open3d as o3d
 
     from pointfield.geometry.meshes import mesh_from_volume
@@ -177,7 +278,10 @@ def main() -> int:
                           "marching cubes, compared with the true cube surface.")
     contenders = {"pointfield": fuse_pointfield, "pointfield, nearest pixel": fuse_pointfield_nearest,
                   "open3d VoxelBlockGrid": fuse_open3d_blocks, "open3d UniformTSDFVolume": fuse_open3d}
+    if before is not None:
+        contenders[earlier] = lambda *arguments: fuse_pointfield(*arguments, tsdf=before)
     meshers = {
+        earlier: lambda volume: mesh_from_volume(volume).points,
         "pointfield": lambda volume: mesh_from_volume(volume).points,
         "pointfield, nearest pixel": lambda volume: mesh_from_volume(volume).points,
         "open3d VoxelBlockGrid": lambda grid: grid.extract_triangle_mesh(weight_threshold=0.0).vertex.positions.numpy(),
@@ -207,7 +311,51 @@ def main() -> int:
     record.table(["depth maps", "views", "library", "maps per s", "median s", "spread",
                   "median distance (voxels)", "95th pct distance (voxels)"], rows,
                  title=f"Fusing the cube's exact depth at {args.resolution}^3 (2 cores)")
+    if args.frames and ROOM.is_dir():
+        room_table(record, args.frames, args.repeats, before, earlier)
+    elif args.frames:
+        record.note(f"The living-room frames are not here ({ROOM}); no second table.")
     return record.finish()
+
+
+def room_table(record: Record, count: int, repeats: int, before, earlier: str) -> None:
+    """The second table (module docstring): sensor frames fused as scene from-rgbd fuses them, and their meshes."""
+    from scipy.spatial import cKDTree
+
+    from pointfield.geometry.meshes import mesh_from_volume
+
+    cameras, depths, colours, box = room_frames(ROOM, count)
+    contenders = {"pointfield": fuse_room_pointfield, "open3d VoxelBlockGrid": fuse_room_open3d}
+    if before is not None:
+        contenders[earlier] = lambda *arguments: fuse_room_pointfield(*arguments, tsdf=before)
+    timings = interleaved({name: lambda f=fuse: f(cameras, depths, colours, box) for name, fuse in contenders.items()},
+                          repeats=repeats)
+    meshes = {}
+    for name, fuse in contenders.items():
+        volume = fuse(cameras, depths, colours, box)
+        started = time.perf_counter()
+        if name.startswith("pointfield"):
+            vertices = mesh_from_volume(volume).points
+        else:
+            vertices = volume.extract_triangle_mesh(weight_threshold=1.0).vertex.positions.numpy()
+        meshes[name] = (vertices, time.perf_counter() - started)
+    ours = meshes["pointfield"][0]
+    rows = []
+    for name in contenders:
+        vertices, seconds = meshes[name]
+        distance = cKDTree(vertices).query(ours)[0] / ROOM_VOXEL
+        rows.append([name, f"{count / timings[name].median:.2f}", f"{timings[name].median:.2f}",
+                     f"{timings[name].spread:.2f}", f"{seconds:.2f}", len(vertices),
+                     f"{np.median(distance):.3f}", f"{np.percentile(distance, 95):.3f}"])
+    record.figures["room"] = {name: timings[name].as_dict() for name in timings}
+    record.table(["library", "frames per s", "median s", "spread", "mesh s", "vertices",
+                  "pointfield's vertices to this mesh, median (voxels)", "95th pct (voxels)"], rows,
+                 title=f"Fusing {count} living-room frames (640 x 480) as scene from-rgbd does, at open3d's poses, "
+                       f"1 cm voxels (threads: OMP_NUM_THREADS or torch's)")
+    ours = timings["pointfield"].median
+    record.note(f"living room: pointfield fuses {count} frames in {ours:.2f} s, "
+                + ", ".join(f"{timings[name].median / ours:.2f}x the speed of {name}" for name in contenders
+                            if name != "pointfield") + ".")
 
 
 if __name__ == "__main__":

@@ -13,7 +13,13 @@ from scipy.spatial.transform import Rotation
 
 from pointfield.cli import main
 from pointfield.geometry.tsdf import TSDFVolume, allocation_stride
-from pointfield.registration.fragments import fragment_pose_graph, fragment_poses, nearest_pairs, split_fragments
+from pointfield.registration.fragments import (
+    _information_at,
+    fragment_pose_graph,
+    fragment_poses,
+    nearest_pairs,
+    split_fragments,
+)
 from pointfield.registration.odometry import Intrinsics, absolute_trajectory_error, backproject, rgbd_odometry
 from pointfield.registration.scan import Scan
 from pointfield.scenes import read_scene
@@ -215,6 +221,25 @@ def test_a_fragments_own_pose_graph_closes_its_keyframe_loop_and_prunes_a_slid_r
     np.testing.assert_allclose(poses[0], drifted[0])  # the fragment's first camera stays where it was
 
 
+def test_the_odometrys_information_gives_the_fragments_the_poses_they_measure_themselves():
+    """Each step's information, measured in the odometry's own k-d trees, is what the fragments' pose graphs would
+    measure (correspondences within the voxel), so handing it over changes no pose and saves a k-d tree per step."""
+    truth = loop_poses(16)[:9]
+    noise = np.random.default_rng(1)
+    depths = [render_depth(p) + noise.normal(0, 0.01, (CAMERA.height, CAMERA.width)) for p in truth]
+    odometry = rgbd_odometry(depths, CAMERA, voxel=0.05, stride=2, information=True)
+    assert len(odometry.information) == len(truth) - 1 and all(i is not None for i in odometry.information)
+    for k in (0, 5):
+        motion = np.linalg.inv(odometry.poses[k]) @ odometry.poses[k + 1]
+        measured = _information_at(odometry.points[k + 1], odometry.points[k], motion, 0.05)
+        assert measured[3, 3] > 100  # the test means something: many correspondences
+        np.testing.assert_allclose(odometry.information[k], measured, rtol=1e-9)
+    measured, linked, _, _ = fragment_pose_graph(odometry.poses, odometry.points, 0, len(truth), 0.05, 4)
+    handed, *_ = fragment_pose_graph(odometry.poses, odometry.points, 0, len(truth), 0.05, 4,
+                                     information=odometry.information)
+    assert linked > 0  # the pose graph has keyframe pairs to weigh against the steps
+    np.testing.assert_allclose(handed, measured, atol=1e-9)
+
 def test_loop_candidates_grow_as_n_times_the_cap_and_keep_each_fragments_nearest():
     """200 fragments whose boxes all meet (a long sequence in one room): 19,900 pairs, of which each keeps its 4 nearest."""
     centres = list(np.random.default_rng(0).uniform(0, 5, (200, 3)))
@@ -259,6 +284,20 @@ def test_from_rgbd_fragments_and_loop_closure_through_the_cli(sequence, tmp_path
     assert main([*argv[:-2], "--out", str(tmp_path / "plain")]) == 0
     assert "fragments: none (8 frames, not more than twice the fragment size 100)" in capsys.readouterr().out
 
+
+def test_keyframe_every_sets_the_keyframe_pairs_of_each_fragments_pose_graph(sequence, tmp_path, capsys):
+    folder, truth = sequence
+    argv = ["scene", "from-rgbd", str(folder), "--voxel", "0.04", "--odometry-voxel", "0.05", "--device", "cpu",
+            "--fragment-size", "3", "--no-loop-closure", "--no-progress"]
+    assert main([*argv, "--keyframe-every", "2", "--out", str(tmp_path / "every2")]) == 0
+    assert "fragments: 3 of 3 frames, each with its own pose graph (keyframes every 2 frames, 2 keyframe pairs" \
+        in capsys.readouterr().out  # frames 0 and 2 of the two fragments of 3 (open3d's 5 would give none)
+    report = json.loads((tmp_path / "every2" / "report.json").read_text())["fragments"]
+    assert report["keyframe_every"] == 2 and report["keyframe_pairs"][0] == 2
+    assert absolute_trajectory_error(read_log_trajectory(tmp_path / "every2" / "trajectory.log"), truth) < 0.01
+    assert main([*argv, "--keyframe-every", "0", "--out", str(tmp_path / "none")]) == 0
+    assert "the odometry kept within each (--keyframe-every 0)" in capsys.readouterr().out
+    _one_line_error(capsys, [*argv, "--keyframe-every", "-1", "--out", tmp_path / "o"], "--keyframe-every")
 
 def _one_line_error(capsys, argv, *fragments):
     assert main([str(a) for a in argv]) == 1

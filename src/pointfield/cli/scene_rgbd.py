@@ -42,6 +42,10 @@ def add_commands(verbs: argparse._SubParsersAction) -> None:
     parser.add_argument("--loop-closure", action=argparse.BooleanOptionalAction, default=True,
                         help="with fragments, register non-consecutive ones too (loop closures), so that a camera "
                         "that comes back lands where it started (default on)")
+    parser.add_argument("--keyframe-every", type=int, default=5, metavar="N",
+                        help="within each fragment every Nth frame is a keyframe, registered onto its nearest "
+                        "keyframes for the fragment's own pose graph, as open3d's make_fragments (default 5, "
+                        "open3d's; 0: none, the odometry kept within fragments)")
     parser.add_argument("--device", help="where to fuse: cpu, cuda, mps (default: the best available)")
     parser.add_argument("--fusion-threads", type=int, default=1, metavar="N",
                         help="torch threads while fusing on the CPU (default 1: each frame's work is too small to "
@@ -58,7 +62,8 @@ def run_from_rgbd(args: argparse.Namespace) -> int:
     result = reconstruct_rgbd(args.folder, args.out, intrinsics=args.intrinsics, depth_scale=args.depth_scale,
                               depth_max=args.depth_max, voxel=args.voxel, odometry_voxel=args.odometry_voxel,
                               frames=args.frames, fragment_size=args.fragment_size,
-                              loop_closure=args.loop_closure, overwrite=args.overwrite, device=args.device,
+                              loop_closure=args.loop_closure, keyframe_every=args.keyframe_every,
+                              overwrite=args.overwrite, device=args.device,
                               fusion_threads=None if args.fusion_threads == 0 else args.fusion_threads,
                               progress=args.progress)
     print(json.dumps(result.report, indent=2) if args.json else result.format())

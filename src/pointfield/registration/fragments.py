@@ -129,7 +129,8 @@ def fragment_cloud(points: list[np.ndarray], poses: np.ndarray, first: int, stop
 
 def fragment_pose_graph(poses: np.ndarray, points: list[np.ndarray], first: int, stop: int, voxel: float,
                         keyframe_interval: int = KEYFRAME_INTERVAL, min_fitness: float = MIN_FITNESS,
-                        max_partners: int | None = MAX_KEYFRAME_PARTNERS) -> tuple[np.ndarray, int, int, int]:
+                        max_partners: int | None = MAX_KEYFRAME_PARTNERS,
+                        information: list[np.ndarray | None] | None = None) -> tuple[np.ndarray, int, int, int]:
     """``(poses, registered, kept, pruned)``: frames ``first`` to ``stop - 1`` put through their own pose graph,
     as open3d's ``make_fragments.py``; ``poses`` ``(stop - first, 4, 4)`` camera-to-world, frame ``first`` where
     it was; ``registered`` the keyframe pairs that linked (fitness >= ``min_fitness``), ``kept`` and ``pruned``
@@ -141,6 +142,11 @@ def fragment_pose_graph(poses: np.ndarray, points: list[np.ndarray], first: int,
     ``4 voxel`` then within ``voxel`` -- uncertain. Each edge's
     information counts its correspondences within ``voxel``. The graph is optimised with open3d's options
     for fragments: inlier distance ``1.4 voxel``, ``preference_loop_closure`` 0.1.
+
+    ``information``: the odometry's own measure of each step's information (``Odometry.information``,
+    over the whole sequence, entry ``i`` for frame ``i + 1`` onto frame ``i``, at the same ``voxel``):
+    used for the consecutive edges where given (not None) instead of measuring it again -- a k-d tree
+    per pair, about half the cost of a fragment's graph. The poses must then be the odometry's.
     """
     import small_gicp
 
@@ -151,7 +157,9 @@ def fragment_pose_graph(poses: np.ndarray, points: list[np.ndarray], first: int,
     edges = []
     for k in range(len(clouds) - 1):
         motion = np.linalg.inv(start[k]) @ start[k + 1]  # frame k + 1 into frame k, as the odometry has it
-        edges.append(PoseGraphEdge(k + 1, k, motion, _information_at(clouds[k + 1], clouds[k], motion, voxel)))
+        given = None if information is None else information[first + k]
+        edges.append(PoseGraphEdge(k + 1, k, motion,
+                                   given if given is not None else _information_at(clouds[k + 1], clouds[k], motion, voxel)))
     keyframes = [k for k in range(0, len(clouds), keyframe_interval) if len(clouds[k]) >= 3]
     world = {k: clouds[k] @ start[k][:3, :3].T + start[k][:3, 3] for k in keyframes}
     meeting = [(a, b) for a in keyframes for b in keyframes if b > a + 1 and _boxes_meet(world[a], world[b], voxel)]
@@ -234,7 +242,8 @@ def fragment_poses(poses: np.ndarray, points: list[np.ndarray], fragment_size: i
                    min_fitness: float = MIN_FITNESS,
                    preference_loop_closure: float = PREFERENCE_LOOP_CLOSURE,
                    keyframe_interval: int | None = KEYFRAME_INTERVAL,
-                   max_loop_partners: int | None = MAX_LOOP_PARTNERS) -> FragmentPoses:
+                   max_loop_partners: int | None = MAX_LOOP_PARTNERS,
+                   information: list[np.ndarray | None] | None = None) -> FragmentPoses:
     """Odometry ``poses`` ``(N, 4, 4)`` refined over fragments and a pose graph (module docstring).
 
     ``points``: each frame's thinned camera-frame cloud ``(M_f, 3)`` (``Odometry.points``);
@@ -244,7 +253,8 @@ def fragment_poses(poses: np.ndarray, points: list[np.ndarray], fragment_size: i
     every so many frames a keyframe, for the pose graph within each fragment
     (:func:`fragment_pose_graph`; None: keep the odometry within fragments); ``max_loop_partners``:
     of the pairs whose boxes meet, each fragment's so many nearest are registered (:func:`nearest_pairs`;
-    None: all of them).
+    None: all of them); ``information``: the odometry's information of each step, for the fragments'
+    own pose graphs (:func:`fragment_pose_graph`; None: measured there).
     """
     poses = np.asarray(poses, np.float64)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(points) != len(poses):
@@ -259,7 +269,7 @@ def fragment_poses(poses: np.ndarray, points: list[np.ndarray], fragment_size: i
         poses = poses.copy()
         for first, stop in ranges:
             poses[first:stop], *counts = fragment_pose_graph(poses, points, first, stop, voxel, keyframe_interval,
-                                                             min_fitness)
+                                                             min_fitness, information=information)
             within = [a + b for a, b in zip(within, counts)]
     start = np.stack([poses[first] for first, _ in ranges])
     clouds = [fragment_cloud(points, poses, first, stop, voxel) for first, stop in ranges]

@@ -70,6 +70,11 @@ class Odometry:
     points: list[np.ndarray] = field(default_factory=list, repr=False)
     """Each frame's thinned cloud ``(M_i, 3)`` in its own camera frame (what was registered)."""
     warnings: list[str] = field(default_factory=list)
+    information: list[np.ndarray | None] = field(default_factory=list, repr=False)
+    """With ``rgbd_odometry(..., information=True)``, ``(N - 1)`` entries: the ``(6, 6)`` information of each
+    step (frame ``i + 1`` onto frame ``i``), from its correspondences within ``voxel`` -- what a
+    fragment's pose graph weighs the step by (:func:`~pointfield.registration.fragments.fragment_pose_graph`);
+    None for a step that did not register frame ``i + 1`` onto frame ``i`` (too few points)."""
 
 
 def backproject(depth: np.ndarray, intrinsics: Intrinsics, stride: int = 1) -> np.ndarray:
@@ -82,13 +87,15 @@ def backproject(depth: np.ndarray, intrinsics: Intrinsics, stride: int = 1) -> n
 
 
 def rgbd_odometry(depths: Iterable[np.ndarray], intrinsics: Intrinsics, *, voxel: float = 0.02, stride: int = 2,
-                  max_distance: float | None = None, max_iterations: int = 30) -> Odometry:
+                  max_distance: float | None = None, max_iterations: int = 30, information: bool = False) -> Odometry:
     """Frame-to-frame generalized ICP over z-depth maps in metres (0 = no depth), as the module docstring says.
 
     ``voxel``: the clouds are thinned to one point per voxel (metres); ``stride``: every
     ``stride``-th pixel is back-projected (2 keeps a 640 x 480 map's points 3 mm apart at 2 m,
     finer than a 2 cm voxel); ``max_distance``: correspondences farther apart are ignored
-    (default ``3 voxel``).
+    (default ``3 voxel``); ``information``: also measure each step's information matrix
+    (:attr:`Odometry.information`) while the step's k-d tree is at hand, so that the fragments' pose
+    graphs need not build one per pair again.
     """
     import small_gicp
 
@@ -97,7 +104,7 @@ def rgbd_odometry(depths: Iterable[np.ndarray], intrinsics: Intrinsics, *, voxel
     if not (np.isfinite(voxel) and voxel > 0):
         raise PointfieldError(f"the odometry voxel must be a positive number of metres, got {voxel}")
     distance = 3.0 * voxel if max_distance is None else float(max_distance)
-    poses, fitness, kept, notes = [np.eye(4)], [], [], []
+    poses, fitness, kept, notes, informations = [np.eye(4)], [], [], [], []
     motion = np.eye(4)
     previous = None
     for index, depth in enumerate(depths):
@@ -108,7 +115,7 @@ def rgbd_odometry(depths: Iterable[np.ndarray], intrinsics: Intrinsics, *, voxel
         size = cloud.size() if cloud is not None else 0
         kept.append(cloud.points()[:, :3].copy() if size else np.zeros((0, 3)))
         if index == 0:
-            previous = (cloud, tree, size)
+            previous, previous_index = (cloud, tree, size), 0
             continue
         if size < MIN_POINTS or previous[2] < MIN_POINTS:
             notes.append(f"frames {index - 1} -> {index}: too few points with depth ({min(size, previous[2])} "
@@ -124,13 +131,30 @@ def rgbd_odometry(depths: Iterable[np.ndarray], intrinsics: Intrinsics, *, voxel
                 notes.append(f"frames {index - 1} -> {index}: fitness {fitness[-1]:.2f}: the frames barely "
                              "overlap; the trajectory may break here")
         poses.append(poses[-1] @ motion)
+        if information:
+            # previous is frame index - 1 unless that frame had too few points and an older one was kept
+            registered = size >= MIN_POINTS and previous[2] >= MIN_POINTS and previous_index == index - 1
+            informations.append(_step_information(kept[-1], kept[-2], previous[1], motion, voxel) if registered else None)
         if size >= MIN_POINTS:
-            previous = (cloud, tree, size)
+            previous, previous_index = (cloud, tree, size), index
     if not kept:
         raise PointfieldError("no frames: odometry needs at least one depth map")
     for note in notes:
         warnings.warn(note, stacklevel=2)
-    return Odometry(np.stack(poses), np.asarray(fitness), kept, notes)
+    return Odometry(np.stack(poses), np.asarray(fitness), kept, notes, informations)
+
+
+def _step_information(source: np.ndarray, target: np.ndarray, target_tree, motion: np.ndarray,
+                      voxel: float) -> np.ndarray:
+    """``(6, 6)`` the information of ``motion`` (``source`` onto ``target``) from its correspondences within ``voxel``,
+    found in small_gicp's k-d tree of ``target`` (exact nearest neighbours, as scipy's that the fragments would build)."""
+    from pointfield.registration.result import information_matrix, transform_points
+
+    index, squared = target_tree.batch_nearest_neighbor_search(transform_points(source, motion))
+    index, squared = np.asarray(index, np.int64).reshape(-1), np.asarray(squared, np.float64).reshape(-1)
+    found = (index >= 0) & (squared < voxel**2)
+    pairs = np.stack([np.flatnonzero(found), index[found]], axis=1)
+    return information_matrix(target, pairs) + np.eye(6) * 1e-6
 
 
 def rigid_alignment(points: np.ndarray, reference: np.ndarray) -> np.ndarray:

@@ -62,7 +62,7 @@ from typing import Any
 import numpy as np
 
 from pointfield.errors import FormatError, OptionError, PointfieldError
-from pointfield.registration.fragments import DEFAULT_FRAGMENT_SIZE, FragmentPoses, fragment_poses
+from pointfield.registration.fragments import DEFAULT_FRAGMENT_SIZE, KEYFRAME_INTERVAL, FragmentPoses, fragment_poses
 from pointfield.registration.odometry import Intrinsics, rgbd_odometry
 
 COLOUR_FOLDERS = ("image", "color", "colour", "rgb")
@@ -278,8 +278,11 @@ class RGBDReconstruction:
         if not f.get("used"):
             return f"  fragments: none ({f['why']})" if f else ""
         within = f.get("keyframe_pairs", [0, 0, 0])
-        line = (f"  fragments: {f['count']} of {f['size']} frames, each with its own pose graph ({within[0]} keyframe "
-                f"pairs, {within[2]} pruned), pose graph over them, {r['seconds'].get('fragments', 0.0):.1f} s; ")
+        own = (f"each with its own pose graph (keyframes every {f.get('keyframe_every', KEYFRAME_INTERVAL)} frames, "
+               f"{within[0]} keyframe pairs, {within[2]} pruned)" if f.get("keyframe_every", KEYFRAME_INTERVAL)
+               else "the odometry kept within each (--keyframe-every 0)")
+        line = (f"  fragments: {f['count']} of {f['size']} frames, {own}, pose graph over them, "
+                f"{r['seconds'].get('fragments', 0.0):.1f} s; ")
         if not f["loop_closure"]:
             return line + "loop closures not tried (--no-loop-closure)"
         return line + (f"loop closures: {f['loop_candidates']} pairs tried, {f['loops_registered']} registered, "
@@ -290,6 +293,7 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
                      intrinsics: str | os.PathLike[str] | None = None, depth_scale: float | None = None,
                      depth_max: float = 3.0, voxel: float = 0.01, odometry_voxel: float = 0.02, stride: int = 2,
                      frames: int | None = None, fragment_size: int = DEFAULT_FRAGMENT_SIZE, loop_closure: bool = True,
+                     keyframe_every: int = KEYFRAME_INTERVAL,
                      overwrite: bool = False, device: str | None = None, fusion_threads: int | None = 1,
                      progress: bool = True) -> RGBDReconstruction:
     """Pose and fuse the RGB-D sequence in ``folder`` and write the scene folder ``out`` (module docstring).
@@ -300,7 +304,9 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     ``frames``: only the first so many. ``fragment_size``: a sequence of more than twice this many
     frames is cut into fragments of so many, registered pairwise and put through a pose graph
     (:func:`~pointfield.registration.fragments.fragment_poses`; 0: never); ``loop_closure``: with
-    fragments, register non-consecutive ones too (loop closures).
+    fragments, register non-consecutive ones too (loop closures); ``keyframe_every``: within each
+    fragment every so many frames a keyframe, registered onto its nearest keyframes for the fragment's
+    own pose graph (default 5, open3d's; 0: none, the odometry kept within fragments).
     ``fusion_threads``: torch threads while fusing on the CPU
     (default 1; None leaves torch's setting): each frame is a few dozen elementwise passes over
     about a million voxels, too little to share -- 15 of the living room's frames fused in 6.8 s
@@ -332,6 +338,9 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     if not (isinstance(fragment_size, int) and fragment_size >= 0):
         raise OptionError(f"fragment_size must be 0 (no fragments) or more, got {fragment_size}",
                           command_line=f"--fragment-size must be 0 (no fragments) or more, got {fragment_size}")
+    if not (isinstance(keyframe_every, int) and keyframe_every >= 0):
+        raise OptionError(f"keyframe_every must be 0 (no keyframes) or more, got {keyframe_every}",
+                          command_line=f"--keyframe-every must be 0 (no keyframes) or more, got {keyframe_every}")
     if frames is not None:
         if frames < 1:
             raise OptionError(f"frames must be 1 or more, got {frames}", command_line=f"--frames must be 1 or more, got {frames}")
@@ -349,12 +358,16 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        odometry = rgbd_odometry(depths(), camera, voxel=odometry_voxel, stride=stride)
+        in_fragments = bool(fragment_size) and len(sequence) > 2 * fragment_size
+        # The fragments' own pose graphs weigh each step by its information: measured in the odometry's k-d trees.
+        odometry = rgbd_odometry(depths(), camera, voxel=odometry_voxel, stride=stride,
+                                 information=in_fragments and keyframe_every > 0)
         odometry_done = time.perf_counter()
         poses, fragments = odometry.poses, None
-        if fragment_size and len(sequence) > 2 * fragment_size:
+        if in_fragments:
             fragments = fragment_poses(odometry.poses, odometry.points, fragment_size, voxel=odometry_voxel,
-                                       loop_closure=loop_closure)
+                                       loop_closure=loop_closure, keyframe_interval=keyframe_every or None,
+                                       information=odometry.information or None)
             poses = fragments.poses
     fragments_done = time.perf_counter()
 
@@ -402,7 +415,7 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
         "grid": list(volume.shape), "box": [low.tolist(), high.tolist()],
         "vertices": len(mesh.points), "faces": len(mesh.faces), "device": str(device),
         "fusion_threads": fusion_threads or threads_before, "warnings": notes,
-        "fragments": _fragment_report(fragments, fragment_size, loop_closure, len(sequence)),
+        "fragments": _fragment_report(fragments, fragment_size, loop_closure, len(sequence), keyframe_every),
     }
     with atomic_directory(out, overwrite=overwrite) as directory:
         _write_outputs(directory, sequence, camera, scale, poses, mesh)
@@ -413,14 +426,15 @@ def reconstruct_rgbd(folder: str | os.PathLike[str], out: str | os.PathLike[str]
     return RGBDReconstruction(out, poses, report)
 
 
-def _fragment_report(fragments: FragmentPoses | None, size: int, loop_closure: bool, count: int) -> dict[str, Any]:
+def _fragment_report(fragments: FragmentPoses | None, size: int, loop_closure: bool, count: int,
+                     keyframe_every: int) -> dict[str, Any]:
     """What the fragment stage did, for ``report.json`` and the summary: nothing, or fragments and pose-graph edges."""
     if fragments is None:
         why = "--fragment-size 0" if not size else f"{count} frames, not more than twice the fragment size {size}"
         return {"used": False, "size": size, "why": why}
     return {"used": True, "size": size, "count": len(fragments.fragments), "ranges": fragments.fragments,
             "loop_closure": loop_closure, "loop_candidates": fragments.loop_candidates,
-            "keyframe_pairs": list(fragments.keyframe_pairs),
+            "keyframe_every": keyframe_every, "keyframe_pairs": list(fragments.keyframe_pairs),
             "loops_registered": sum(p.kind == "loop closure" for p in fragments.pairs),
             "loops_kept": fragments.loops_kept, "loops_pruned": fragments.loops_pruned,
             "edges": [{"source": p.source, "target": p.target, "kind": p.kind, "how": p.how,
