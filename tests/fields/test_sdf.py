@@ -17,7 +17,7 @@ from pointfield.fields.encodings.hashgrid import HashEncoding, reference_hash_en
 from pointfield.fields.models import build_model
 from pointfield.fields.rays import RayBundle
 from pointfield.fields.sampling.occupancy import march_rays
-from pointfield.fields.sdf import NeuralSDF, tetrahedral_gradient
+from pointfield.fields.sdf import NeuralSDF, first_of_ray, tetrahedral_gradient
 from pointfield.fields.train import train
 from pointfield.geometry import export_mesh
 from pointfield.geometry.compare import sample_mesh, surface_scores
@@ -193,15 +193,36 @@ def test_early_termination_drops_only_samples_that_cannot_change_a_pixel(monkeyp
     rays = RayBundle(origins, directions, torch.zeros(256), torch.full((256,), 8.0))
     with torch.no_grad():
         marched = march_rays(rays, model.grid, model.step_size)
-        kept_samples = model.terminated(marched, rays)
+        kept_samples, _ = model.terminated(marched, rays)
         (kept,) = model(rays).passes
-        monkeypatch.setattr(model, "terminated", lambda samples, rays: samples)
+        monkeypatch.setattr(model, "terminated", lambda samples, rays: (samples, first_of_ray(samples.ray_indices)))
         (everything,) = model(rays).passes
     assert float((kept.color - everything.color).abs().max()) < 1e-3
     assert float((kept.opacity - everything.opacity).abs().max()) < 1e-3
     assert float(everything.opacity.max()) > 0.99  # rays that do meet the sphere
     # The full occupancy grid of an untrained field marches through the whole sphere: most of it goes.
     assert len(kept_samples) < 0.6 * len(marched), (len(kept_samples), len(marched))
+
+
+def test_skipping_faint_sections_lets_a_step_afford_more_rays_for_the_same_picture():
+    # The sphere of s = e^5 as above: its logistic tail in front of the surface is marched (the
+    # occupancy band) but carries almost no weight; the full field (four evaluations and a backward
+    # each) runs only where the weight is.
+    rays_directions = _directions(256, seed=3)
+    origins = -4.0 * rays_directions + 0.3 * torch.randn(256, 3, generator=torch.Generator().manual_seed(4))
+    rays = RayBundle(origins, rays_directions, torch.zeros(256), torch.full((256,), 8.0))
+    outputs = {}
+    for min_weight in (0.0, 1e-3):
+        torch.manual_seed(0)
+        model = NeuralSDF(initial_variance=0.5, min_weight=min_weight, **SMALL).eval()
+        with torch.no_grad():
+            outputs[min_weight] = model(rays)
+    (everything,), (skipped,) = outputs[0.0].passes, outputs[1e-3].passes
+    assert outputs[1e-3].samples < 0.7 * outputs[0.0].samples, (outputs[1e-3].samples, outputs[0.0].samples)
+    assert float((skipped.color - everything.color).abs().max()) < 0.02
+    assert float((skipped.opacity - everything.opacity).abs().max()) < 0.02
+    with pytest.raises(ValueError, match="min_weight"):
+        NeuralSDF(min_weight=1.0, **SMALL)
 
 
 def test_the_sdf_model_refuses_an_unbounded_scene():
