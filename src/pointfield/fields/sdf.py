@@ -12,7 +12,11 @@ order a ray meets them:
    termination*, as ngp's: one evaluation of ``f`` per sample without gradients estimates each
    section's opacity from consecutive samples of its ray, ``1 - Phi_s(f_{i+1}) / Phi_s(f_i)``
    (NeuS's estimate when it up-samples), and the samples behind which a ray's transmittance
-   is below ``EARLY_STOP_TRANSMITTANCE`` are dropped before the full field runs.
+   is below ``EARLY_STOP_TRANSMITTANCE`` are dropped before the full field runs, and so are
+   those whose estimated weight ``T_i alpha_i`` is at most ``min_weight`` (:data:`MIN_WEIGHT`):
+   the logistic tail in front of the surface, which the grid's band keeps occupied. That is
+   NeuS's up-sampling (samples where the weight is) done by selection, and it is what lets a
+   step of the same sample budget take more rays (ngp skips empty space the same way).
 2. **The SDF network** (:class:`SDFNetwork`), on coordinates ``p = (x - c) / r`` that map the box
    into ``[-1, 1]^3`` (``c`` its centre, ``r`` half its longest side): the position and its
    multiresolution hash encoding (Instant-NGP) into a small ReLU MLP giving the signed
@@ -43,7 +47,9 @@ order a ray meets them:
    (all in box units ``p``). The compositor (:func:`~pointfield.fields.rendering.composite`)
    takes densities: ``sigma_i = -ln(1 - alpha_i) / delta_i`` is the constant density over the
    section with that opacity, so weights, depth and opacity come out of the one compositor.
-   NeuS anneals ``cos`` from a half-sphere average; this uses its final form throughout. A
+   NeuS anneals ``cos`` from a half-sphere average, ``-(relu(1/2 - cos/2)(1 - r) + relu(-cos) r)``
+   with ``r`` rising from 0 to 1 over its first steps; ``cos_anneal_steps`` does so (default 0:
+   the final form throughout; no gain measured, docs/geometry.md). A
    ray's first section starts at ``f >= 0`` (``entry_outside``): outside the box is free space
    (the mesh export closes the surface there), so a ray that enters where ``f < 0`` meets the
    surface at the wall; the ratio alone is nearly 0 there, deep in the CDF's tail, where it
@@ -53,7 +59,8 @@ order a ray meets them:
    the empty space no ray samples, so marching cubes finds no stray surfaces there), as the
    model's auxiliary loss; weight 0.1 as NeuS and instant-NSR use.
 7. **Learning rates** (:meth:`NeuralSDF.parameter_groups`): the hash table at the run's, the
-   MLPs and ``v`` at ``network_lr_fraction`` (a tenth) of it.
+   MLPs and ``v`` at ``network_lr_fraction`` (a tenth) of it; ``sharpness_lr_fraction`` gives
+   ``v`` a rate of its own (default None: the MLPs').
 
 The model is a :class:`~pointfield.fields.field.RadianceField` like the others: trained by
 ``nerf train --model sdf`` through the same lifecycle and training rays, rendered by
@@ -200,7 +207,9 @@ class NeuralSDF(RadianceField):
     ``gradient``: "finite-difference" (default) or "autograd" (module docstring, step 3);
     ``finite_difference_step``: the tetrahedron's offset in box units (default half the finest
     hash cell, ``1 / max_resolution``). ``entry_outside``: rays come into the box from free space
-    (module docstring, step 5); ``network_lr_fraction``: step 7 (1.0: one parameter group).
+    (module docstring, step 5); ``network_lr_fraction``: step 7 (1.0: one parameter group);
+    ``sharpness_lr_fraction``: ``v``'s own rate, step 7; ``cos_anneal_steps``: step 5's anneal;
+    ``min_weight``: the faint sections skipped, step 1 (0: none).
     """
 
     def __init__(
