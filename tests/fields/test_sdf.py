@@ -17,7 +17,7 @@ from pointfield.fields.encodings.hashgrid import HashEncoding, reference_hash_en
 from pointfield.fields.models import build_model
 from pointfield.fields.rays import RayBundle
 from pointfield.fields.sampling.occupancy import march_rays
-from pointfield.fields.sdf import NeuralSDF, tetrahedral_gradient
+from pointfield.fields.sdf import MIN_WEIGHT, NeuralSDF, first_of_ray, tetrahedral_gradient
 from pointfield.fields.train import train
 from pointfield.geometry import export_mesh
 from pointfield.geometry.compare import sample_mesh, surface_scores
@@ -141,6 +141,21 @@ def test_neus_alphas_composite_to_the_logistic_cdf_across_a_plane():
     assert float(model.alphas(f, gradient, -directions, deltas).detach().max()) == 0
 
 
+def test_the_cosine_anneal_lets_every_section_absorb_at_first_and_ends_in_neus_alpha():
+    # NeuS's cos_anneal_ratio: at step 0 a section absorbs whichever way the ray crosses the
+    # surface (cos averaged over the half-sphere); from cos_anneal_steps on, only entering ones.
+    model = NeuralSDF(cos_anneal_steps=100, **SMALL)
+    f = torch.linspace(0.2, -0.2, 20)
+    gradient = torch.tensor([[0.0, 0.0, 1.0]]).expand(20, 3)
+    leaving = torch.tensor([[0.75 ** 0.5, 0.0, 0.5]]).expand(20, 3)  # 60 degrees off the gradient: out of the solid
+    deltas = torch.full((20,), 0.02)
+    model.before_step(0)
+    assert float(model.alphas(f, gradient, leaving, deltas).detach().max()) > 0.05
+    model.before_step(100)
+    assert float(model.alphas(f, gradient, leaving, deltas).detach().max()) == 0
+    assert NeuralSDF(**SMALL).cos_anneal_steps == 0  # off unless asked for
+
+
 def test_a_ray_that_enters_the_box_inside_the_solid_meets_the_surface_at_the_wall():
     # The box's outside is free space (the exported mesh is closed there), so a ray whose first
     # section starts at negative distance crosses the surface at its start: opaque at once, as
@@ -172,36 +187,70 @@ def test_the_sdf_networks_and_sharpness_learn_at_a_tenth_of_the_hash_tables_rate
     assert len(networks["params"]) == len(list(model.parameters())) - 1
 
 
-def test_an_sdf_run_from_before_the_two_rates_resumes_with_its_one_rate(tmp_path):
+def test_the_sharpness_can_learn_at_a_rate_of_its_own():
+    model = NeuralSDF(sharpness_lr_fraction=1.0, **SMALL)
+    table, networks, sharpness = model.parameter_groups(1e-2)
+    assert sharpness["params"] == [model.variance] and sharpness["lr"] == pytest.approx(1e-2)
+    assert networks["lr"] == pytest.approx(1e-3) and all(p is not model.variance for p in networks["params"])
+    assert len(table["params"]) + len(networks["params"]) + 1 == len(list(model.parameters()))
+
+
+def test_an_sdf_run_from_before_the_two_rates_and_the_skipping_resumes_as_it_was_trained(tmp_path):
     options = {**CUBE, "cube_views": 4, "cube_size": 16}
+    assert train(None, out=tmp_path / "new", steps=1, **options)["steps"] == 1
+    assert json.loads((tmp_path / "new" / "config.json").read_text())["model_options"]["min_weight"] == MIN_WEIGHT
     first = train(None, out=tmp_path / "run", steps=1, **{**options, "model_options": {
-        **options["model_options"], "network_lr_fraction": 1.0}})  # one parameter group, as such a run saved
+        **options["model_options"], "network_lr_fraction": 1.0, "min_weight": 0.0}})  # as such a run trained
     config_path = tmp_path / "run" / "config.json"
     config = json.loads(config_path.read_text())
-    del config["model_options"]["network_lr_fraction"]  # the option did not exist then
+    del config["model_options"]["network_lr_fraction"]  # the options did not exist then
+    del config["model_options"]["min_weight"]
     config_path.write_text(json.dumps(config))
     resumed = train(None, out=tmp_path / "run", steps=2, resume=True, **options)
     assert resumed["steps"] == 2 and first["steps"] == 1
-    assert json.loads(config_path.read_text())["model_options"]["network_lr_fraction"] == 1.0
+    options_now = json.loads(config_path.read_text())["model_options"]
+    assert options_now["network_lr_fraction"] == 1.0 and options_now["min_weight"] == 0.0  # as it was trained
 
 
 def test_early_termination_drops_only_samples_that_cannot_change_a_pixel(monkeypatch):
     torch.manual_seed(0)
-    model = NeuralSDF(initial_variance=0.5, **SMALL).eval()  # s = e^5: a sharp sphere of radius 0.75
+    # s = e^5: a sharp sphere of radius 0.75; early termination alone (no faint sections skipped)
+    model = NeuralSDF(initial_variance=0.5, min_weight=0.0, **SMALL).eval()
     directions = _directions(256, seed=3)
     origins = -4.0 * directions + 0.3 * torch.randn(256, 3, generator=torch.Generator().manual_seed(4))
     rays = RayBundle(origins, directions, torch.zeros(256), torch.full((256,), 8.0))
     with torch.no_grad():
         marched = march_rays(rays, model.grid, model.step_size)
-        kept_samples = model.terminated(marched, rays)
+        kept_samples, _ = model.terminated(marched, rays)
         (kept,) = model(rays).passes
-        monkeypatch.setattr(model, "terminated", lambda samples, rays: samples)
+        monkeypatch.setattr(model, "terminated", lambda samples, rays: (samples, first_of_ray(samples.ray_indices)))
         (everything,) = model(rays).passes
     assert float((kept.color - everything.color).abs().max()) < 1e-3
     assert float((kept.opacity - everything.opacity).abs().max()) < 1e-3
     assert float(everything.opacity.max()) > 0.99  # rays that do meet the sphere
     # The full occupancy grid of an untrained field marches through the whole sphere: most of it goes.
     assert len(kept_samples) < 0.6 * len(marched), (len(kept_samples), len(marched))
+
+
+def test_skipping_faint_sections_lets_a_step_afford_more_rays_for_the_same_picture():
+    # The sphere of s = e^5 as above: its logistic tail in front of the surface is marched (the
+    # occupancy band) but carries almost no weight; the full field (four evaluations and a backward
+    # each) runs only where the weight is.
+    rays_directions = _directions(256, seed=3)
+    origins = -4.0 * rays_directions + 0.3 * torch.randn(256, 3, generator=torch.Generator().manual_seed(4))
+    rays = RayBundle(origins, rays_directions, torch.zeros(256), torch.full((256,), 8.0))
+    outputs = {}
+    for min_weight in (0.0, 1e-3):
+        torch.manual_seed(0)
+        model = NeuralSDF(initial_variance=0.5, min_weight=min_weight, **SMALL).eval()
+        with torch.no_grad():
+            outputs[min_weight] = model(rays)
+    (everything,), (skipped,) = outputs[0.0].passes, outputs[1e-3].passes
+    assert outputs[1e-3].samples < 0.7 * outputs[0.0].samples, (outputs[1e-3].samples, outputs[0.0].samples)
+    assert float((skipped.color - everything.color).abs().max()) < 0.02
+    assert float((skipped.opacity - everything.opacity).abs().max()) < 0.02
+    with pytest.raises(ValueError, match="min_weight"):
+        NeuralSDF(min_weight=1.0, **SMALL)
 
 
 def test_the_sdf_model_refuses_an_unbounded_scene():

@@ -35,9 +35,18 @@ TASK = "nerf"
 RENDER_CHUNK = 16384
 
 
+SDF_OPTIONS_OF_OLD_RUNS = {"network_lr_fraction": 1.0, "min_weight": 0.0}
+"""``sdf`` options that runs made before them behaved as (``NerfTask`` fills them in when such a run
+resumes): left out of the identity, so that those runs' checkpoints, which do not name them, match."""
+
+
 def identity_of(config: dict[str, Any]) -> dict[str, Any]:
-    """What a NeRF run's checkpoints must match: the model and its options."""
-    return {"task": TASK, "model": config["model"], "model_options": config.get("model_options", {})}
+    """What a NeRF run's checkpoints must match: the model and its options (less :data:`SDF_OPTIONS_OF_OLD_RUNS`)."""
+    options = config.get("model_options", {})
+    if config["model"] == "sdf":
+        options = {key: value for key, value in options.items()
+                   if key not in SDF_OPTIONS_OF_OLD_RUNS or value != SDF_OPTIONS_OF_OLD_RUNS[key]}
+    return {"task": TASK, "model": config["model"], "model_options": options}
 
 
 def build_field(config: dict[str, Any], device: torch.device) -> RadianceField:

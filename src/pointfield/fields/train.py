@@ -60,7 +60,7 @@ from pointfield.fields.scene_box import (
     scene_bounds,
     steps_a_pixel_allows,
 )
-from pointfield.fields.sdf import NETWORK_LR_FRACTION
+from pointfield.fields.sdf import MIN_WEIGHT, NETWORK_LR_FRACTION
 from pointfield.fields.training_rays import TrainingRays
 from pointfield.metrics import psnr_from_mse
 from pointfield.scenes.heldout import (
@@ -197,6 +197,9 @@ class NerfTask(Task):
         if config["model"] == "sdf" and "network_lr_fraction" not in config["model_options"]:
             # A run trained before the MLPs had their own rate resumes with its one rate (its optimizer's state).
             config["model_options"]["network_lr_fraction"] = NETWORK_LR_FRACTION if new_run else 1.0
+        if config["model"] == "sdf" and "min_weight" not in config["model_options"]:
+            # A run trained before faint sections were skipped resumes marching every one.
+            config["model_options"]["min_weight"] = MIN_WEIGHT if new_run else 0.0
         if config["model"] in HASH_GRID_MODELS and new_run:
             scene_box = config.get("scene_box", "auto")
             if config["model"] == "sdf" and scene_box == "auto":
