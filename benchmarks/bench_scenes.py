@@ -39,6 +39,9 @@ CLAIM_SECONDS = 900.0
 # a held-out room is scored in 40 % of the points it takes on S3DIS's 5 cm grid (which gives a 2 m
 # ball 5,700 points: on 2 cores, 15 minutes are then a few hundred crops thinned to a sixth).
 KINDS = (("room", 10, 0.5, 0.1, 2.0), ("street", 10, 1.0, 0.1, 4.0))
+# Input features besides xyz: segment train's default (colour, intensity, height) for rooms; streets add
+# the scans' normals, with which PTv3 scored 0.559 against 0.461 after 300 s in one run (docs/scenes.md).
+FEATURES = {"room": None, "street": ("colour", "intensity", "height", "normals")}
 MODELS = {"pointnet2": "PointNet++ SSG", "ptv3": "Point Transformer V3"}
 
 
@@ -77,7 +80,7 @@ def main() -> int:
             make_scenes(data, kind, count, seed=100, density=0.1 if args.quick else density)
             for model in models:
                 metrics = train_scenes(
-                    [data], out=work / f"{kind}-{model}", model=model, grid=grid, radius=radius,
+                    [data], out=work / f"{kind}-{model}", model=model, grid=grid, radius=radius, features=FEATURES[kind],
                     points=256 if args.quick else args.points, crops=16 if args.quick else args.crops, epochs=1000,
                     max_training_time=budget, progress=False, device="cpu",
                 )
@@ -97,7 +100,7 @@ def main() -> int:
         record.table(["scans", "model", "parameters", "training s", "epochs", "overall accuracy", "mIoU",
                       "majority mIoU", "IoU per class"], rows,
                      title=f"{args.points} points per crop, {args.crops} crops per epoch, the same training time each; "
-                           "rooms: 2 m balls, streets: 4 m, both on a 10 cm grid")
+                           "rooms: 2 m balls, streets: 4 m and normals as input too, both on a 10 cm grid")
         if record.environment["load_before"][0] > 1.0:
             record.note(f"Trained and scored on a machine already loaded to {record.environment['load_before'][0]:.1f} "
                         "(2 cores shared with other jobs): the steps reached within the budget, and so the scores, "
