@@ -70,6 +70,7 @@ def main() -> int:
         "always answering the commonest class scores. The learning rate warms up over the first 5 % of the "
         "training time, then falls by a cosine to 1 % at its end (`BudgetCosine`)."))
     budget = 60.0 if args.quick else args.max_time
+    points, crops = (256, 16) if args.quick else (args.points, args.crops)
     rows, work = [], Path(tempfile.mkdtemp(prefix="bench-scenes-"))
     try:
         for kind, count, density, grid, radius in KINDS:
@@ -81,7 +82,7 @@ def main() -> int:
             for model in models:
                 metrics = train_scenes(
                     [data], out=work / f"{kind}-{model}", model=model, grid=grid, radius=radius, features=FEATURES[kind],
-                    points=256 if args.quick else args.points, crops=16 if args.quick else args.crops, epochs=1000,
+                    points=points, crops=crops, epochs=1000,
                     max_training_time=budget, progress=False, device="cpu",
                 )
                 classes = len(metrics["per_class"])
@@ -99,7 +100,7 @@ def main() -> int:
                                f"{metrics['miou']:.3f} after {metrics['training_seconds']:.0f} s")
         record.table(["scans", "model", "parameters", "training s", "epochs", "overall accuracy", "mIoU",
                       "majority mIoU", "IoU per class"], rows,
-                     title=f"{args.points} points per crop, {args.crops} crops per epoch, the same training time each; "
+                     title=f"{points} points per crop, {crops} crops per epoch, the same training time each; "
                            "rooms: 2 m balls, streets: 4 m and normals as input too, both on a 10 cm grid")
         if record.environment["load_before"][0] > 1.0:
             record.note(f"Trained and scored on a machine already loaded to {record.environment['load_before'][0]:.1f} "
