@@ -190,3 +190,16 @@ def test_the_final_scores_are_of_the_final_model_when_the_clock_skipped_its_eval
     final = task.finish(RunDirectory(tmp_path / "run"), TrainingState(epoch=2, step=4, history=history))
     assert final["test_points"] == sum(len(scene) for scene in task.test_scenes) != 1000 * len(ROOM_CLASSES)
     assert final["miou"] < 1.0
+
+
+def test_a_run_stopped_by_its_training_time_ends_annealed_whatever_its_epochs(rooms, tmp_path):
+    """A cosine over 1,000 epochs, stepped per epoch, left a run stopped by the clock after a few of them at
+    0.99999 of the full rate; over the time limit, the rate falls step by step (to 1 % at the limit: the
+    last step's rate is set before it runs, so it stops short of that, the more so the fewer the steps)."""
+    from pointfield.clouds.scene_tasks import train_scenes
+
+    out = tmp_path / "run"
+    train_scenes([rooms], out=out, grid=0.12, radius=1.5, points=128, crops=8, batch_size=2, epochs=1000,
+                 learning_rate=0.002, max_training_time=2.0, progress=False, device="cpu")
+    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert records[-1]["epoch"] < 1000 and records[-1]["lr"] < 0.9 * 0.002, records[-1]

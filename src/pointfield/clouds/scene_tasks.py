@@ -15,7 +15,8 @@ The recipe (Pointcept's and PointNet++'s choices, sized for a CPU):
   point of a class drawn uniformly among those present, at most ``points`` points (4096);
 - augmentation: a turn about z, scale 0.9..1.1, jitter 1 cm, colour jitter and drop;
 - loss: cross-entropy with ENet's class-balanced weights ``1 / ln(1.02 + f_c)``; Adam at 0.001
-  with weight decay 1e-4, cosine-decayed to 1 % over the epochs;
+  with weight decay 1e-4, cosine-decayed to 1 % over the epochs, or, given a time limit, warmed up
+  and cosine-decayed step by step over it (:class:`~pointfield.training.schedules.BudgetCosine`);
 - evaluation after each epoch on every test scan, each point's class the vote of the windows
   holding it: overall accuracy, mean IoU and the IoU of each class, on the grid-subsampled
   points (as Pointcept scores during training); the final scores are those of the final model,
@@ -72,6 +73,7 @@ from pointfield.training.distributed import wrap
 from pointfield.training.lifecycle import restore_model
 from pointfield.training.loop import TrainingState
 from pointfield.training.run import Run, RunDirectory
+from pointfield.training.schedules import BudgetCosine
 from pointfield.training.task import Step, Task
 from pointfield.version import __version__
 from pointfield.viz.plots import plot_confusion_matrix, plot_training_curves
@@ -245,9 +247,11 @@ class SceneSegmentTask(Task):
         self.trained = wrap(self.model, None, device)
         self.optimizer = torch.optim.Adam(self.trained.parameters(), lr=config["learning_rate"],
                                           weight_decay=WEIGHT_DECAY)
-        self.scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
-            self.optimizer, T_max=config["epochs"], eta_min=config["learning_rate"] * FINAL_LEARNING_RATE_FRACTION)
         self.epochs = config["epochs"]
+        # A cosine over the epochs, stepped once an epoch; warm_up swaps it for one over the time
+        # limits when the lifecycle has set any, so that a run stopped by the clock ends annealed.
+        self.scheduler: Any = torch.optim.lr_scheduler.CosineAnnealingLR(
+            self.optimizer, T_max=config["epochs"], eta_min=config["learning_rate"] * FINAL_LEARNING_RATE_FRACTION)
         self.identity = identity_of(config)
         self.weights = torch.tensor(config["class_weights"], dtype=torch.float32, device=device)
         self.crops = SceneCrops(
@@ -263,7 +267,16 @@ class SceneSegmentTask(Task):
             print(f"segment scenes {config['model']}: {self.parameters:,} parameters on {device}; "
                   f"{config['data_description']}; features {', '.join(config['features'])}")
 
+    def warm_up(self) -> None:
+        if self.training_budget is not None or self.time_budget.limited:
+            steps_per_epoch = len(self.crops) // max(2, min(self.config["batch_size"], len(self.crops))) or 1
+            self.scheduler = BudgetCosine(
+                self.optimizer, total_steps=self.epochs * steps_per_epoch, training_seconds=self.training_budget,
+                wall=self.time_budget, final=FINAL_LEARNING_RATE_FRACTION)
+
     def batches(self, epoch: int) -> torch.utils.data.DataLoader:
+        if isinstance(self.scheduler, BudgetCosine):
+            self.scheduler.resume()
         set_batchnorm_momentum(self.model, epoch * len(self.crops))
         self.crops.set_epoch(epoch)
         return torch.utils.data.DataLoader(
@@ -274,6 +287,8 @@ class SceneSegmentTask(Task):
 
     def step(self, batch: Any) -> Step:
         """Class-weighted cross-entropy over every real, labelled point of the batch's crops."""
+        if isinstance(self.scheduler, BudgetCosine):
+            self.scheduler.advance()
         batch = batch.to(self.device)
         logits = self.trained(batch.points, batch.features, batch.mask)
         target = batch.point_labels.reshape(-1)
@@ -284,6 +299,8 @@ class SceneSegmentTask(Task):
         return Step(loss, {"accuracy": float(correct)})
 
     def evaluate(self, epoch: int) -> dict[str, float]:
+        if isinstance(self.scheduler, BudgetCosine):
+            self.scheduler.pause()
         started = time.perf_counter()
         self.confusion, self.predictions = confusion_over(self.model, self.test_scenes, self.config, self.device)
         self.evaluation_seconds = time.perf_counter() - started

@@ -91,6 +91,7 @@ def train(
         torch.manual_seed(config["seed"])
         task = task_class(config, torch_device, distributed, progress and is_main, **(options or {}))
         task.time_budget = budget
+        task.training_budget = max_training_time
         if is_main:
             run.create(resume)  # only now: a bad scene or option leaves an existing folder untouched
             run.write_config(task.config)

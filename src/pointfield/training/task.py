@@ -17,7 +17,9 @@ what finishing will cost           :meth:`Task.finishing_seconds` (kept for it f
 =================================  ==============================================================
 
 The lifecycle sets ``time_budget`` (:class:`~pointfield.training.budget.TimeBudget`, the call's
-``max_time``) before training; a task's :meth:`Task.finish` fits its final evaluation into it.
+``max_time``) and ``training_budget`` (``max_training_time``, seconds or None) before
+:meth:`Task.warm_up`; a task's :meth:`Task.finish` fits its final evaluation into the first, and
+a schedule may be sized to both (:class:`~pointfield.training.schedules.BudgetCosine`).
 
 A step returns its loss and, separately and by name, any auxiliary losses (PointNet's
 orthogonality regulariser, the proposal networks' interlevel loss): the loop adds them to the
@@ -87,6 +89,7 @@ class Task:
     epochs: int
     identity: dict[str, Any]
     time_budget: TimeBudget = TimeBudget()
+    training_budget: float | None = None
 
     def __init__(
         self, config: dict[str, Any], device: torch.device, distributed: Distributed | None, progress: bool
