@@ -87,3 +87,20 @@ def test_dense_grid_puts_every_row_at_its_voxel():
     np.testing.assert_array_equal(tsdf[where], volume.tsdf.numpy()[inside])
     np.testing.assert_array_equal(observed[where], volume.weight.numpy()[inside] > 0)
     assert (tsdf == 1).sum() == tsdf.size - inside.sum()  # every voxel of no block is empty
+
+
+def test_a_distorted_camera_allocates_the_blocks_a_pinhole_one_does_on_a_non_square_map():
+    """Distorted cameras keep the per-ray path; with distortion too small to move a pixel (1e-9), it
+    must mark the pinhole path's blocks, on a map whose height is not its width (the fox's 60 x 33)."""
+    from pointfield.scenes.cameras import Cameras
+
+    scene = synthetic_scene("cube", views=4, size=64)
+    cameras = scene.cameras[[0]]
+    depth = torch.from_numpy(scene.depth(0)).float()[2:62, 15:48]  # 60 x 33, the principal point kept inside
+    shift = dict(cx=cameras.cx - 15, cy=cameras.cy - 2, width=33, height=60)
+    pinhole = Cameras(cameras.camera_to_world, cameras.fx, cameras.fy, **shift)
+    distorted = Cameras(cameras.camera_to_world, cameras.fx, cameras.fy, **shift, model="OPENCV",
+                        distortion=[[1e-9, 0.0, 0.0, 0.0, 0.0]])
+    blocks = [TSDFVolume.create([-1, -1, -1], [1, 1, 1], 64).allocate(depth, camera, 0, 1)
+              for camera in (pinhole, distorted)]
+    assert len(blocks[0]) > 0 and torch.equal(blocks[0], blocks[1])

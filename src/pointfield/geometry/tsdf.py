@@ -200,7 +200,7 @@ class TSDFVolume:
         with ``q = ((u - cx) / fx, (v - cy) / fy, 1)``: its block, ``floor((C - low) / b + z R q / b)``
         for a block of side ``b``, is one multiply-add per sample from ``R q / b`` found once per pixel.
         """
-        depth = depth.to(self.device, torch.float32)
+        depth = depth.to(self.device, torch.float32).contiguous()  # viewed flat below
         camera = cameras[[index]].to(self.device, torch.float32)
         height, width = depth.shape
         seen = depth > 0
@@ -232,7 +232,7 @@ class TSDFVolume:
                 flat = torch.where(valid, block.to(kind) @ flat_of, len(marked) - 1)
                 marked.index_fill_(0, flat.long(), True)
         else:
-            rays = camera.rays_through(0, pixel_centers(width, height, device=self.device)[seen.view(-1)])
+            rays = camera.rays_through(0, pixel_centers(width, height, device=self.device)[seen])
             sparse = torch.zeros_like(seen)
             sparse[::pixel_stride, ::pixel_stride] = True
             sparse = sparse[seen]
