@@ -130,7 +130,8 @@ def verdicts(results: dict, claim: Callable[[str, bool], None], size: int = 100)
     if size != 100:
         if "ngp" in results:
             t31 = seconds_to("ngp", 31)
-            claim(f"ngp reaches 31 dB within 300 s at {size} x {size} (at {t31} s; final "
+            reached = "not reached" if t31 is None else f"at {t31} s"
+            claim(f"ngp reaches 31 dB within 300 s at {size} x {size} ({reached}; final "
                   f"{results['ngp']['final_psnr']:.2f} dB)", t31 is not None and t31 <= 300)
         return
     if "ngp" in results:
